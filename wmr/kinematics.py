@@ -1,0 +1,272 @@
+"""Unicycle kinematics (eq. 1), its zero-order-hold steps and their Jacobians, the error frame.
+
+The continuous model is eq. (1) of the paper::
+
+    x' = v cos(theta),  y' = v sin(theta),  theta' = w.
+
+With the input ``u = (v, w)`` held constant over ``[t_k, t_k + dt]`` (zero-order hold) the
+motion is an arc, which :func:`step` integrates exactly (``EXACT``, the default) or with the
+explicit Euler (``EULER``) or classical Runge-Kutta (``RK4``) schemes.  Each step sits beside its
+Jacobians with respect to the pose and the input (:func:`step_jacobians`).
+
+The tracking error of eq. (6) is ``e = T_e(theta) (q_r - q)`` with ``e3`` wrapped to (-pi, pi].
+The paper prints ``T_e`` with second row ``[sin, cos, 0]``; the rotation into the robot frame has
+``[-sin, cos, 0]`` (errata E3).  The printed matrix is kept behind ``printed=True``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from wmr._jit import njit
+
+__all__ = [
+    "EXACT",
+    "EULER",
+    "RK4",
+    "INTEGRATORS",
+    "integrator_code",
+    "wrap_angle",
+    "unicycle_rhs",
+    "input_matrix",
+    "step",
+    "step_jacobians",
+    "rotation",
+    "tracking_error",
+]
+
+EXACT, EULER, RK4 = 0, 1, 2
+#: User-facing integrator names and their codes inside jitted code.
+INTEGRATORS = {"exact": EXACT, "euler": EULER, "rk4": RK4}
+
+
+def integrator_code(name: str | int) -> int:
+    """Return the integer code of an integrator given by name (``"exact"``, ...) or code."""
+    if isinstance(name, int | np.integer) and int(name) in INTEGRATORS.values():
+        return int(name)
+    try:
+        return INTEGRATORS[name]  # type: ignore[index]
+    except (KeyError, TypeError):
+        raise ValueError(
+            f"unknown integrator {name!r}; expected one of {sorted(INTEGRATORS)}"
+        ) from None
+
+
+@njit
+def wrap_angle(a):
+    """Wrap an angle [rad] to (-pi, pi]."""
+    r = math.atan2(math.sin(a), math.cos(a))
+    if r == -math.pi:  # atan2 may return -pi exactly; the interval is half-open on that side
+        r = math.pi
+    return r
+
+
+@njit
+def unicycle_rhs(q, u):
+    """Right-hand side of eq. (1): ``q' = G(theta) u``, shape (3,)."""
+    out = np.empty(3)
+    out[0] = u[0] * math.cos(q[2])
+    out[1] = u[0] * math.sin(q[2])
+    out[2] = u[1]
+    return out
+
+
+@njit
+def input_matrix(theta):
+    """``G(theta) = [[cos, 0], [sin, 0], [0, 1]]``, so that ``q' = G(theta) u``; shape (3, 2)."""
+    G = np.zeros((3, 2))
+    G[0, 0] = math.cos(theta)
+    G[1, 0] = math.sin(theta)
+    G[2, 1] = 1.0
+    return G
+
+
+@njit
+def _sinc_and_derivative(a):
+    """``s(a) = sin(a)/a`` and ``s'(a)``, by Taylor series near 0 (error < 1e-17 there)."""
+    if abs(a) < 1e-4:
+        a2 = a * a
+        return 1.0 - a2 / 6.0 + a2 * a2 / 120.0, -a / 3.0 + a * a2 / 30.0
+    s = math.sin(a) / a
+    return s, (math.cos(a) - s) / a
+
+
+@njit
+def _rhs_jacobians(q, u, A, B):
+    """Write ``A = df/dq`` (3, 3) and ``B = df/du`` (3, 2) of eq. (1) into A and B."""
+    c = math.cos(q[2])
+    s = math.sin(q[2])
+    A[:, :] = 0.0
+    A[0, 2] = -u[0] * s
+    A[1, 2] = u[0] * c
+    B[:, :] = 0.0
+    B[0, 0] = c
+    B[1, 0] = s
+    B[2, 1] = 1.0
+
+
+@njit
+def step(q, u, dt, integrator=EXACT):
+    """Advance the pose over one sample period with the input held constant.
+
+    Parameters
+    ----------
+    q : ndarray, shape (3,)
+        Pose ``(x [m], y [m], theta [rad])`` at ``t_k``.
+    u : ndarray, shape (2,)
+        Input ``(v [m/s], w [rad/s])`` held over ``[t_k, t_k + dt]``.
+    dt : float
+        Sample period [s].
+    integrator : int
+        ``EXACT`` (arc, default), ``EULER`` or ``RK4``.
+
+    Returns
+    -------
+    ndarray, shape (3,)
+        Pose at ``t_k + dt``; theta is not wrapped (it stays continuous).
+
+    Notes
+    -----
+    The exact arc, with ``a = w dt / 2`` and ``sinc(a) = sin(a)/a``, is::
+
+        x+ = x + v dt sinc(a) cos(theta + a)
+        y+ = y + v dt sinc(a) sin(theta + a)
+        theta+ = theta + w dt
+
+    which equals ``x + v/w (sin(theta+) - sin(theta))`` for ``w != 0`` and the straight line for
+    ``w = 0``, without the division by ``w``.
+    """
+    v = u[0]
+    w = u[1]
+    out = np.empty(3)
+    if integrator == EXACT:
+        a = 0.5 * w * dt
+        s, _ = _sinc_and_derivative(a)
+        phi = q[2] + a
+        out[0] = q[0] + v * dt * s * math.cos(phi)
+        out[1] = q[1] + v * dt * s * math.sin(phi)
+        out[2] = q[2] + w * dt
+    elif integrator == EULER:
+        out[0] = q[0] + dt * v * math.cos(q[2])
+        out[1] = q[1] + dt * v * math.sin(q[2])
+        out[2] = q[2] + dt * w
+    else:
+        k1 = unicycle_rhs(q, u)
+        k2 = unicycle_rhs(q + 0.5 * dt * k1, u)
+        k3 = unicycle_rhs(q + 0.5 * dt * k2, u)
+        k4 = unicycle_rhs(q + dt * k3, u)
+        out[:] = q + dt / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    return out
+
+
+@njit
+def step_jacobians(q, u, dt, integrator=EXACT):
+    """Jacobians of :func:`step`: ``F = dq+/dq`` (3, 3) and ``G = dq+/du`` (3, 2).
+
+    Derivation
+    ----------
+    *Exact* (``a = w dt/2``, ``s = sinc(a)``, ``phi = theta + a``)::
+
+        dx+/dtheta = -v dt s sin(phi)          dy+/dtheta =  v dt s cos(phi)
+        dx+/dv     =    dt s cos(phi)          dy+/dv     =    dt s sin(phi)
+        dx+/dw = v dt^2/2 (s' cos(phi) - s sin(phi))
+        dy+/dw = v dt^2/2 (s' sin(phi) + s cos(phi))
+        dtheta+/dtheta = 1,  dtheta+/dw = dt.
+
+    *Euler*: ``F = I + dt A(q)``, ``G = dt B(q)`` with ``A = df/dq``, ``B = df/du`` of eq. (1).
+
+    *RK4*: the tangent of each stage is propagated with the chain rule; with
+    ``q_i = q + c_i dt k_{i-1}`` and ``k_i = f(q_i, u)``,
+    ``dk_i/dq = A(q_i) (I + c_i dt dk_{i-1}/dq)`` and
+    ``dk_i/du = A(q_i) c_i dt dk_{i-1}/du + B(q_i)``; the step's Jacobians are the RK4 weighted
+    sums of the stage tangents.  This is exact for the RK4 map (not an approximation of the
+    flow's Jacobian).
+    """
+    v = u[0]
+    w = u[1]
+    F = np.eye(3)
+    G = np.zeros((3, 2))
+    if integrator == EXACT:
+        a = 0.5 * w * dt
+        s, ds = _sinc_and_derivative(a)
+        phi = q[2] + a
+        c = math.cos(phi)
+        sn = math.sin(phi)
+        F[0, 2] = -v * dt * s * sn
+        F[1, 2] = v * dt * s * c
+        G[0, 0] = dt * s * c
+        G[1, 0] = dt * s * sn
+        G[0, 1] = 0.5 * v * dt * dt * (ds * c - s * sn)
+        G[1, 1] = 0.5 * v * dt * dt * (ds * sn + s * c)
+        G[2, 1] = dt
+    elif integrator == EULER:
+        c = math.cos(q[2])
+        sn = math.sin(q[2])
+        F[0, 2] = -dt * v * sn
+        F[1, 2] = dt * v * c
+        G[0, 0] = dt * c
+        G[1, 0] = dt * sn
+        G[2, 1] = dt
+    else:
+        A = np.empty((3, 3))
+        B = np.empty((3, 2))
+        Fq = np.zeros((3, 3))  # running sum of weighted stage tangents wrt q
+        Fu = np.zeros((3, 2))  # ... and wrt u
+        dk_dq = np.zeros((3, 3))
+        dk_du = np.zeros((3, 2))
+        k = np.zeros(3)
+        coeffs = (0.0, 0.5, 0.5, 1.0)
+        weights = (1.0, 2.0, 2.0, 1.0)
+        eye = np.eye(3)
+        for i in range(4):
+            ci = coeffs[i] * dt
+            qi = q + ci * k
+            _rhs_jacobians(qi, u, A, B)
+            dqi_dq = eye + ci * dk_dq
+            dqi_du = ci * dk_du
+            dk_dq = A @ dqi_dq
+            dk_du = A @ dqi_du + B
+            k = unicycle_rhs(qi, u)
+            Fq += weights[i] * dk_dq
+            Fu += weights[i] * dk_du
+        F = eye + dt / 6.0 * Fq
+        G = dt / 6.0 * Fu
+    return F, G
+
+
+@njit
+def rotation(theta, printed=False):
+    """The world-to-robot-frame matrix ``T_e(theta)`` of eqs. (4)/(6), shape (3, 3).
+
+    ``printed=False`` (default) gives the rotation ``[[c, s, 0], [-s, c, 0], [0, 0, 1]]``
+    (errata E3).  ``printed=True`` gives the paper's printed ``[[c, s, 0], [s, c, 0], [0, 0, 1]]``,
+    whose determinant is ``cos(2 theta)`` (singular at theta = +-45 deg).
+    """
+    c = math.cos(theta)
+    s = math.sin(theta)
+    T = np.eye(3)
+    T[0, 0] = c
+    T[0, 1] = s
+    T[1, 0] = s if printed else -s
+    T[1, 1] = c
+    return T
+
+
+@njit
+def tracking_error(q, q_r, printed=False):
+    """Tracking error of eq. (6): ``e = T_e(theta) (q_r - q)``, shape (3,).
+
+    ``q_r`` may be a full reference sample (length >= 3); only its pose is used.  ``e3`` is the
+    wrapped heading error ``theta_r - theta`` (errata E2), in (-pi, pi].
+    """
+    c = math.cos(q[2])
+    s = math.sin(q[2])
+    dx = q_r[0] - q[0]
+    dy = q_r[1] - q[1]
+    e = np.empty(3)
+    e[0] = c * dx + s * dy
+    e[1] = (s if printed else -s) * dx + c * dy
+    e[2] = wrap_angle(q_r[2] - q[2])
+    return e
