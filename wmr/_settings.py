@@ -1,0 +1,105 @@
+"""Validated frozen settings: TOML tables to dataclasses, with errors that name key and value.
+
+A settings class is a ``@dataclass(frozen=True)`` whose fields are annotated ``float``, ``int``,
+``bool``, ``str`` or ``tuple[float, ...]`` (the length of a tuple field is that of its default).
+:func:`from_table` converts a TOML table into it, rejecting unknown keys, wrong types, NaN/inf and
+wrong lengths; the class's ``__post_init__`` checks meaning (signs, ranges) and raises
+:class:`SettingError` naming the field.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import typing
+from collections.abc import Mapping
+from typing import Any
+
+__all__ = ["SettingError", "from_table", "check", "finite", "positive", "nonnegative"]
+
+
+class SettingError(ValueError):
+    """An invalid setting: ``key`` (dotted path), offending ``value`` and the ``reason``."""
+
+    def __init__(self, key: str, value: Any, reason: str):
+        self.key, self.value, self.reason = key, value, reason
+        super().__init__(f"{key} = {value!r}: {reason}")
+
+
+def check(ok: bool, key: str, value: Any, reason: str) -> None:
+    """Raise :class:`SettingError` unless ``ok``."""
+    if not ok:
+        raise SettingError(key, value, reason)
+
+
+def finite(key: str, value: float) -> None:
+    check(math.isfinite(value), key, value, "must be a finite number")
+
+
+def positive(key: str, value: float) -> None:
+    check(math.isfinite(value) and value > 0, key, value, "must be a finite number > 0")
+
+
+def nonnegative(key: str, value: float) -> None:
+    check(math.isfinite(value) and value >= 0, key, value, "must be a finite number >= 0")
+
+
+def _convert(key: str, value: Any, annotation: Any, default: Any) -> Any:
+    origin = typing.get_origin(annotation)
+    if annotation is bool:
+        check(isinstance(value, bool), key, value, "must be true or false")
+        return value
+    if annotation is int:
+        check(isinstance(value, int) and not isinstance(value, bool), key, value, "must be an integer")
+        return value
+    if annotation is float:
+        ok = isinstance(value, int | float) and not isinstance(value, bool)
+        check(ok, key, value, "must be a number")
+        finite(key, float(value))
+        return float(value)
+    if annotation is str:
+        check(isinstance(value, str), key, value, "must be a string")
+        return value
+    if origin is tuple:
+        check(isinstance(value, list | tuple), key, value, "must be an array of numbers")
+        if default is not dataclasses.MISSING and default is not None:
+            n = len(default)
+            check(len(value) == n, key, value, f"must have {n} elements, has {len(value)}")
+        out = []
+        for i, item in enumerate(value):
+            out.append(_convert(f"{key}[{i}]", item, float, dataclasses.MISSING))
+        return tuple(out)
+    raise TypeError(f"unsupported settings annotation {annotation!r} for {key}")
+
+
+def from_table(cls: type, table: Mapping[str, Any], where: str) -> Any:
+    """Build the frozen dataclass ``cls`` from a TOML ``table`` found at dotted path ``where``.
+
+    Unknown keys, wrong types, non-finite numbers and wrong tuple lengths raise
+    :class:`SettingError` with the full dotted key; so does any :class:`SettingError` or
+    ``ValueError`` raised by the class's ``__post_init__``.
+    """
+    if not isinstance(table, Mapping):
+        raise SettingError(where, table, "must be a table")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    prefix = f"{where}." if where else ""
+    for name in table:
+        if name not in fields:
+            raise SettingError(
+                f"{prefix}{name}", table[name], f"unknown key (known: {', '.join(sorted(fields))})"
+            )
+    kwargs = {}
+    for name, f in fields.items():
+        if name in table:
+            default = f.default
+            if default is dataclasses.MISSING and f.default_factory is not dataclasses.MISSING:
+                default = f.default_factory()
+            kwargs[name] = _convert(f"{prefix}{name}", table[name], hints[name], default)
+        elif f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise SettingError(f"{prefix}{name}", None, "required key is missing")
+    try:
+        return cls(**kwargs)
+    except SettingError as err:
+        key = err.key if err.key.startswith(prefix) or not prefix else f"{prefix}{err.key}"
+        raise SettingError(key, err.value, err.reason) from None

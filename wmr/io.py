@@ -1,0 +1,65 @@
+"""Safe output: every file is written to a temporary sibling and renamed into place.
+
+A reader never sees a half-written file, and an interrupted run leaves the previous file intact.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import tempfile
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+
+__all__ = ["atomic_write_text", "atomic_write_bytes", "write_json", "write_csv", "save_figure"]
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (temporary file in the same folder, then rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def atomic_write_text(path: str | Path, text: str) -> Path:
+    """Write UTF-8 ``text`` atomically."""
+    return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def write_json(path: str | Path, obj) -> Path:
+    """Write ``obj`` as indented JSON (sorted keys are not used: the order is the contract's)."""
+    return atomic_write_text(path, json.dumps(obj, indent=2, allow_nan=False) + "\n")
+
+
+def write_csv(path: str | Path, header: Sequence[str], rows: Iterable[Sequence]) -> Path:
+    """Write a CSV with ``header`` atomically; floats with ``repr`` precision (round-trip exact)."""
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(header)
+    for row in rows:
+        writer.writerow([repr(float(x)) if isinstance(x, float) else x for x in row])
+    return atomic_write_text(path, buf.getvalue())
+
+
+def save_figure(fig, path: str | Path, **kwargs) -> Path:
+    """Save a matplotlib figure atomically (PNG metadata stripped so the bytes are reproducible)."""
+    path = Path(path)
+    buf = io.BytesIO()
+    kwargs.setdefault("dpi", 120)
+    kwargs.setdefault("bbox_inches", "tight")
+    fmt = path.suffix.lstrip(".") or "png"
+    metadata = {"Software": None} if fmt == "png" else {"Creator": None}
+    fig.savefig(buf, format=fmt, metadata=metadata, **kwargs)
+    return atomic_write_bytes(path, buf.getvalue())

@@ -1,0 +1,70 @@
+"""Figures: tracking (path, pose coordinates) and tracking errors, as in the paper's Figs. 4-10."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only; no display needed
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from wmr.kinematics import rotation  # noqa: E402
+from wmr.metrics import wrap  # noqa: E402
+
+__all__ = ["COLORS", "LABELS", "robot_frame_errors", "tracking_figure"]
+
+#: One colour per controller, the same in every figure.
+COLORS = {
+    "iapid-nn-dekf": "tab:blue",
+    "backstepping": "tab:orange",
+    "adaptive-nn": "tab:red",
+    "adaptive-pid": "tab:pink",
+    "pid": "tab:gray",
+}
+LABELS = {
+    "iapid-nn-dekf": "IAPID-NN-DEKF",
+    "backstepping": "BSC",
+    "adaptive-nn": "DA-NN",
+    "adaptive-pid": "APID",
+    "pid": "PID (fixed)",
+}
+
+
+def robot_frame_errors(q: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """Tracking errors ``(x_e, y_e, theta_e)`` of eq. (6), corrected rotation, shape (n, 3)."""
+    e = np.empty((len(q), 3))
+    for i in range(len(q)):
+        e[i] = rotation(q[i, 2]) @ (ref[i, :3] - q[i])
+    e[:, 2] = wrap(e[:, 2])
+    return e
+
+
+def tracking_figure(runs: Sequence, title: str = ""):
+    """Path (reference vs robots) and the robot-frame errors vs time, for runs of one scenario."""
+    fig = plt.figure(figsize=(11, 6.5), layout="constrained")
+    grid = fig.add_gridspec(3, 2, width_ratios=(1.1, 1))
+    ax_path = fig.add_subplot(grid[:, 0])
+    ax_err = [fig.add_subplot(grid[i, 1]) for i in range(3)]
+    ref = runs[0].ref
+    ax_path.plot(ref[:, 0], ref[:, 1], "k--", lw=1.5, label="reference")
+    for r in runs:
+        color = COLORS.get(r.controller)
+        label = LABELS.get(r.controller, r.controller)
+        if r.diverged:
+            label += f" (diverged at {r.diverged_at:.2f} s)"
+        ax_path.plot(r.q[:, 0], r.q[:, 1], color=color, lw=1.2, label=label)
+        e = robot_frame_errors(r.q, r.ref)
+        for i in range(3):
+            ax_err[i].plot(r.t, e[:, i], color=color, lw=1.0)
+    ax_path.plot(*runs[0].q[0, :2], "ko", ms=5, label="start")
+    ax_path.set(xlabel="x [m]", ylabel="y [m]", title=title or runs[0].scenario, aspect="equal")
+    ax_path.legend(loc="best", fontsize=8)
+    for ax, name in zip(ax_err, ("$x_e$ [m]", "$y_e$ [m]", r"$\theta_e$ [rad]"), strict=True):
+        ax.set_ylabel(name)
+        ax.grid(alpha=0.3)
+        ax.axhline(0.0, color="k", lw=0.5)
+    ax_err[-1].set_xlabel("t [s]")
+    ax_err[0].set_title("tracking errors (robot frame, eq. 6)")
+    return fig

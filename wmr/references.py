@@ -1,0 +1,113 @@
+"""Reference trajectories: lemniscate (Gerono), sinusoid and circle (DESIGN §3.1).
+
+Each reference is a planar path ``(x_r(t), y_r(t))`` with analytic first and second
+derivatives, from which (Kanayama 1990; errata E1)::
+
+    theta_r = atan2(y_r', x_r')              (continuous, unwrapped)
+    v_r     = sqrt(x_r'^2 + y_r'^2)
+    w_r     = (x_r' y_r'' - y_r' x_r'') / (x_r'^2 + y_r'^2)
+
+A sampled reference is an array of shape ``(len(t), 5)`` with columns
+``(x_r, y_r, theta_r, v_r, w_r)``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+
+__all__ = ["KINDS", "path_derivatives", "sample", "ReferenceSampler"]
+
+#: Reference kinds and their required parameters.
+KINDS: dict[str, tuple[str, ...]] = {
+    "lemniscate": ("size", "period"),
+    "sinusoid": ("speed", "amplitude", "omega"),
+    "circle": ("radius", "period"),
+}
+
+
+def path_derivatives(kind: str, params: Mapping[str, float], t):
+    """Path and its time derivatives at times ``t`` [s].
+
+    Returns
+    -------
+    tuple of ndarray
+        ``(x, y, xd, yd, xdd, ydd)``, each of the shape of ``t``.
+
+    Notes
+    -----
+    - lemniscate (Gerono): ``phi = 2 pi t / period``, ``x = a sin(phi)``,
+      ``y = a sin(phi) cos(phi) = (a/2) sin(2 phi)``, with ``a = size``.
+    - sinusoid: ``x = speed t``, ``y = amplitude sin(omega t)``.
+    - circle: ``phi = 2 pi t / period``, ``x = radius cos(phi)``, ``y = radius sin(phi)``.
+    """
+    t = np.asarray(t, dtype=float)
+    if kind == "lemniscate":
+        a, W = params["size"], 2.0 * math.pi / params["period"]
+        phi = W * t
+        s1, c1, s2, c2 = np.sin(phi), np.cos(phi), np.sin(2 * phi), np.cos(2 * phi)
+        return a * s1, 0.5 * a * s2, a * W * c1, a * W * c2, -a * W**2 * s1, -2 * a * W**2 * s2
+    if kind == "sinusoid":
+        s, A, w = params["speed"], params["amplitude"], params["omega"]
+        sn, cs = np.sin(w * t), np.cos(w * t)
+        zero = np.zeros_like(t)
+        return s * t, A * sn, s + zero, A * w * cs, zero, -A * w * w * sn
+    if kind == "circle":
+        R, W = params["radius"], 2.0 * math.pi / params["period"]
+        phi = W * t
+        sn, cs = np.sin(phi), np.cos(phi)
+        return R * cs, R * sn, -R * W * sn, R * W * cs, -R * W**2 * cs, -R * W**2 * sn
+    raise ValueError(f"unknown reference kind {kind!r}; expected one of {sorted(KINDS)}")
+
+
+def _columns(kind, params, t):
+    """Columns of a reference sample except that theta_r is wrapped (atan2)."""
+    x, y, xd, yd, xdd, ydd = path_derivatives(kind, params, t)
+    speed2 = xd * xd + yd * yd
+    out = np.empty((np.size(t), 5))
+    out[:, 0] = x
+    out[:, 1] = y
+    out[:, 2] = np.arctan2(yd, xd)
+    out[:, 3] = np.sqrt(speed2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out[:, 4] = np.where(speed2 > 0.0, (xd * ydd - yd * xdd) / speed2, 0.0)
+    return out
+
+
+class ReferenceSampler:
+    """Samples a reference on the grid ``t_k = k dt`` in consecutive chunks.
+
+    Chunking keeps memory independent of run length; ``theta_r`` is unwrapped across chunks by
+    counting whole turns in integers, so the values do not depend on the chunk size.
+    """
+
+    def __init__(self, kind: str, params: Mapping[str, float], dt: float):
+        if kind not in KINDS:
+            raise ValueError(f"unknown reference kind {kind!r}; expected one of {sorted(KINDS)}")
+        self.kind, self.params, self.dt = kind, dict(params), float(dt)
+        self._next_k = 0
+        self._turns = 0  # whole turns added to atan2 so far
+        self._last_wrapped: float | None = None
+
+    def rows(self, k0: int, k1: int) -> np.ndarray:
+        """Rows for ``k = k0 .. k1 - 1``; chunks must be requested in order from 0."""
+        if k0 != self._next_k:
+            raise ValueError(f"chunks must be consecutive: expected k0={self._next_k}, got {k0}")
+        out = _columns(self.kind, self.params, np.arange(k0, k1) * self.dt)
+        wrapped = out[:, 2].copy()
+        prev = wrapped[0] if self._last_wrapped is None else self._last_wrapped
+        jumps = np.diff(np.concatenate(([prev], wrapped)))
+        turns = self._turns - np.cumsum(np.rint(jumps / (2 * math.pi)).astype(np.int64))
+        out[:, 2] = wrapped + 2 * math.pi * turns
+        if k1 > k0:
+            self._turns = int(turns[-1])
+            self._last_wrapped = float(wrapped[-1])
+        self._next_k = k1
+        return out
+
+
+def sample(kind: str, params: Mapping[str, float], dt: float, n: int) -> np.ndarray:
+    """The reference at ``t_k = k dt``, ``k = 0 .. n - 1``, shape ``(n, 5)``."""
+    return ReferenceSampler(kind, params, dt).rows(0, n)
