@@ -205,7 +205,7 @@ def simulate(
     rng_noise = np.random.default_rng(noise_ss)
     n = scenario.n_steps
     dt = scenario.dt
-    p, s, W, P = ctrl.pack(settings, n, dt, np.random.default_rng(init_ss))
+    p, s, W, P = ctrl.pack(settings, scenario, np.random.default_rng(init_ss))
     state_names = ctrl.state_names
 
     q = np.array(scenario.initial_pose, dtype=float)

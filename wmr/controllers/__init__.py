@@ -4,53 +4,52 @@ A controller is a pure jitted law plus explicit state (STYLE §7)::
 
     law(p, s, W, P, q_hat, ref, dt, u) -> None
 
-``p`` are its frozen parameters (float vector), ``s`` its small mutable state (integrals, gains,
-previous signals...), ``W`` and ``P`` its weight vector and covariance (empty for controllers
-without a network); it writes the input ``(v, w)`` into ``u``.  ``pack(settings, n_steps, dt, rng)``
-builds ``(p, s, W, P)`` from the validated settings; the simulator owns and advances them.
+``p`` are its frozen parameters (a namedtuple or float vector), ``s`` its small mutable state
+(integrals, gains, previous signals...), ``W`` and ``P`` its weight vector and covariance (empty
+for controllers without a network); it writes the input ``(v, w)`` into ``u``.
+``pack(settings, scenario, rng) -> (p, s, W, P)`` builds them from the validated settings (``rng``
+initialises network weights); the simulator owns and advances them.  The first
+``len(state_names)`` entries of ``s`` are logged along a run.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from types import ModuleType
 
-from wmr.controllers import backstepping
+from wmr.controllers import backstepping, pid
 
-__all__ = ["Controller", "REGISTRY", "NAMES", "get"]
+__all__ = ["Controller", "REGISTRY", "NAMES", "PAPER_NAMES", "get"]
 
 
 @dataclass(frozen=True)
 class Controller:
-    """A registered controller: its name, settings class, packer, law and logged state names."""
+    """A registered controller."""
 
     name: str
-    module: ModuleType
-    uses_estimator: bool = False  # True: consumes the pose-EKF estimate by default (the paper's scheme)
-
-    @property
-    def Settings(self) -> type:  # noqa: N802 - a class
-        return self.module.Settings
-
-    @property
-    def pack(self) -> Callable:
-        return self.module.pack
-
-    @property
-    def law(self) -> Callable:
-        return self.module.law
-
-    @property
-    def state_names(self) -> tuple[str, ...]:
-        return self.module.STATE_NAMES
+    Settings: type
+    pack: Callable
+    law: Callable
+    state_names: tuple[str, ...] = ()
+    uses_estimator: bool = False  # True: consumes the pose-EKF estimate under pose_source="paper"
+    label: str = ""
 
 
 REGISTRY: dict[str, Controller] = {
-    "backstepping": Controller("backstepping", backstepping),
-}
-#: Controller names in the order tables list them.
+    c.name: c
+    for c in (
+        Controller("backstepping", backstepping.Settings, backstepping.pack, backstepping.law,
+                   backstepping.STATE_NAMES, label="BSC"),
+        Controller("adaptive-pid", pid.Settings, pid.pack, pid.law, pid.STATE_NAMES,
+                   label="APID"),
+        Controller("pid", pid.FixedSettings, pid.pack, pid.law, pid.GAIN_NAMES,
+                   label="PID (fixed)"),
+    )
+}  # fmt: skip
+#: Controller names in table order.
 NAMES: tuple[str, ...] = tuple(REGISTRY)
+#: The four controllers of the paper's tables.
+PAPER_NAMES: tuple[str, ...] = ("iapid-nn-dekf", "backstepping", "adaptive-nn", "adaptive-pid")
 
 
 def get(name: str) -> Controller:

@@ -48,7 +48,7 @@ class Settings:
             check(math.isfinite(g) and g > 0, "gains", self.gains, f"{name} must be > 0")
 
 
-def pack(settings: Settings, n_steps: int, dt: float, rng: np.random.Generator):
+def pack(settings: Settings, scenario, rng: np.random.Generator):
     """Parameter vector and initial state: ``p = (k1, k2, k3, printed)``; no state."""
     p = np.array([*settings.gains, float(settings.printed_rotation)])
     return p, np.zeros(0), np.zeros(0), np.zeros((0, 0))

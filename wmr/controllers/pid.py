@@ -1,0 +1,238 @@
+"""The PID of eq. (7) and its SGD gain adaptation, eqs. (8)-(17): the ``pid`` and ``adaptive-pid``.
+
+Control law (eq. 7), with ``e = (e1, e2, e3)`` of eq. (6) (corrected rotation by default) and
+``s = e3 + e2`` the signal of the angular loop::
+
+    v = Kpv e1 + Kiv I[e1] + Kdv D[e1]            (+ v_r cos e3 with feed_forward)
+    w = Kpw s  + Kiw I[s]  + Kdw D[s]             (+ w_r        with feed_forward)
+
+discretised as ``I[x]_k = I[x]_{k-1} + dt x_k`` and ``D[x]_k = (x_k - x_{k-1}) / dt``
+(``D = 0`` at ``k = 0``).  The paper's eq. (7) has no feed-forward; it is off by default.
+
+Gain adaptation (eqs. 8-17, errata E5): with ``F = e^T Gamma e / 2`` and the regressor
+``phi = dU/dK`` of eq. (15), one SGD step per sample is::
+
+    K <- clip(K + mu o (dU/dK_{k-1})^T J_{k-1}^T T_e(theta_k)^T Gamma e_k, K_min, K_max)
+
+where ``J_{k-1} = dq_k/du_{k-1}`` is the plant Jacobian (causal indices, E5b; ``dT_e/dK`` is
+neglected, E5a).  ``adaptive-pid`` uses the exact ZOH Jacobian of the unicycle model;
+``iapid-nn-dekf`` (``wmr.controllers.iapid_nn_dekf``) uses the one identified by the network.
+
+State vector ``s`` (shared by the PID family, see ``S_*`` indices): gains, Jacobian estimate,
+diagnostics, integrals, previous error signals and regressor, previous input and pose.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import namedtuple
+from dataclasses import dataclass
+
+import numpy as np
+
+from wmr._jit import njit
+from wmr._settings import check
+from wmr.kinematics import INTEGRATORS, rotation, step_jacobians, tracking_error
+
+__all__ = [
+    "Settings",
+    "FixedSettings",
+    "Params",
+    "STATE_NAMES",
+    "pack",
+    "law",
+    "pid_output",
+    "sgd_gain_step",
+    "S_K",
+    "S_J",
+]
+
+# Layout of the PID-family state vector s.
+S_K = 0  # 6 gains (Kpv, Kiv, Kdv, Kpw, Kiw, Kdw)
+S_J = 6  # 6 entries of the 3x2 Jacobian estimate J_{k-1}, row-major
+S_NN_ERR = 12  # network prediction error norm (iapid only)
+S_REPAIRS = 13  # covariance repairs so far (iapid only)
+S_INT = 14  # 2 integrals (I[e1], I[s])
+S_PREV = 16  # 2 previous signals (e1, s) for the derivative
+S_PHI = 18  # 6 regressor entries dU/dK of the previous step
+S_U = 24  # 2 previous input
+S_Q = 26  # 3 previous pose estimate
+S_STARTED = 29  # 0 before the first step
+S_SIZE = 30
+
+GAIN_NAMES = ("Kpv", "Kiv", "Kdv", "Kpw", "Kiw", "Kdw")
+J_NAMES = ("J_xv", "J_xw", "J_yv", "J_yw", "J_thv", "J_thw")
+#: Logged along a run by ``adaptive-pid`` (``pid`` logs the same; its gains stay constant).
+STATE_NAMES = GAIN_NAMES + J_NAMES
+
+#: Frozen parameters of the PID family inside jitted code.
+Params = namedtuple(
+    "Params",
+    "K_min K_max mu alpha feed_forward printed_rotation adaptive integrator "
+    "nn_n_h nn_printed_jacobian q_diag R",
+)
+
+
+@dataclass(frozen=True)
+class Settings:
+    """PID (eq. 7) and SGD (eqs. 8-17) settings.  The paper gives only ``mu = 0.9``.
+
+    Attributes
+    ----------
+    gains : tuple of float
+        Initial ``(Kpv, Kiv, Kdv, Kpw, Kiw, Kdw)``.  Not in the paper; default
+        ``(5, 5, 0, 10, 2, 0)``: a fixed PID that tracks the sinusoid to cm level with the literal
+        eq. 7 (reproduction-notes §5.4).
+    mu : tuple of float
+        SGD learning rates per gain (eq. 10); the paper's 0.9 for all.
+    alpha : tuple of float
+        Cost weights of eq. (8); not in the paper, 1 each (``alpha2`` has no effect with the exact
+        Jacobian: notes §4.3).
+    gain_min, gain_max : tuple of float
+        Clamp of each gain during adaptation (errata E5d).  Not in the paper.  ``Kd <= 1``: noise
+        on the measured pose drives the derivative gains up (DESIGN §5).
+    feed_forward : bool
+        Add ``(v_r cos e3, w_r)`` to eq. 7 (not in the paper).
+    printed_rotation : bool
+        Use the paper's printed error matrix of eqs. 4/6 (errata E3) instead of the rotation.
+    adapt : bool
+        Adapt the gains (``adaptive-pid``); False gives the fixed ``pid``.
+    """
+
+    gains: tuple[float, ...] = (5.0, 5.0, 0.0, 10.0, 2.0, 0.0)
+    mu: tuple[float, ...] = (0.9, 0.9, 0.9, 0.9, 0.9, 0.9)
+    alpha: tuple[float, ...] = (1.0, 1.0, 1.0)
+    gain_min: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    gain_max: tuple[float, ...] = (50.0, 50.0, 1.0, 50.0, 50.0, 1.0)
+    feed_forward: bool = False
+    printed_rotation: bool = False
+    adapt: bool = True
+
+    def __post_init__(self):
+        for name in ("mu", "alpha", "gain_min"):
+            for x in getattr(self, name):
+                check(x >= 0, name, getattr(self, name), "entries must be >= 0")
+        for lo, hi, k in zip(self.gain_min, self.gain_max, self.gains, strict=True):
+            check(lo <= hi, "gain_max", self.gain_max, "must be >= gain_min entrywise")
+            check(lo <= k <= hi, "gains", self.gains, "must lie within [gain_min, gain_max]")
+
+
+def _base_params(settings: Settings, adaptive: int, integrator: int = 0, **nn) -> Params:
+    return Params(
+        K_min=np.array(settings.gain_min),
+        K_max=np.array(settings.gain_max),
+        mu=np.array(settings.mu),
+        alpha=np.array(settings.alpha),
+        feed_forward=settings.feed_forward,
+        printed_rotation=settings.printed_rotation,
+        adaptive=adaptive,
+        integrator=integrator,
+        nn_n_h=nn.get("n_h", 0),
+        nn_printed_jacobian=nn.get("printed_jacobian", False),
+        q_diag=nn.get("q_diag", np.zeros(0)),
+        R=nn.get("R", np.zeros((0, 0))),
+    )
+
+
+def initial_state(settings: Settings) -> np.ndarray:
+    s = np.zeros(S_SIZE)
+    s[S_K : S_K + 6] = settings.gains
+    return s
+
+
+@dataclass(frozen=True)
+class FixedSettings(Settings):
+    """Settings of the fixed-gain ``pid``: those of :class:`Settings` with ``adapt = false``."""
+
+    adapt: bool = False
+
+
+def pack(settings: Settings, scenario, rng):
+    """``(p, s, W, P)`` for ``pid``/``adaptive-pid``: no network, so ``W`` and ``P`` are empty."""
+    p = _base_params(settings, 1 if settings.adapt else 0, INTEGRATORS[scenario.integrator])
+    return p, initial_state(settings), np.zeros(0), np.zeros((0, 0))
+
+
+@njit
+def pid_output(p, s, e, ref, dt, u):
+    """Eq. (7): update integrals/derivatives in ``s``, write ``u``, store the regressor of eq. (15).
+
+    The regressor ``dU/dK = [[e1, I[e1], D[e1], 0, 0, 0], [0, 0, 0, s, I[s], D[s]]]`` is kept in
+    ``s[S_PHI:S_PHI+6]`` as ``(e1, I[e1], D[e1], s, I[s], D[s])`` for the next SGD step.
+    """
+    ex = e[0]
+    sw = e[2] + e[1]
+    s[S_INT] += dt * ex
+    s[S_INT + 1] += dt * sw
+    if s[S_STARTED] != 0.0:
+        dx = (ex - s[S_PREV]) / dt
+        dw = (sw - s[S_PREV + 1]) / dt
+    else:
+        dx = 0.0
+        dw = 0.0
+    s[S_PREV] = ex
+    s[S_PREV + 1] = sw
+    phi = s[S_PHI : S_PHI + 6]
+    phi[0] = ex
+    phi[1] = s[S_INT]
+    phi[2] = dx
+    phi[3] = sw
+    phi[4] = s[S_INT + 1]
+    phi[5] = dw
+    K = s[S_K : S_K + 6]
+    u[0] = K[0] * phi[0] + K[1] * phi[1] + K[2] * phi[2]
+    u[1] = K[3] * phi[3] + K[4] * phi[4] + K[5] * phi[5]
+    if p.feed_forward:
+        u[0] += ref[3] * math.cos(e[2])
+        u[1] += ref[4]
+
+
+@njit
+def sgd_gain_step(p, s, J, e, theta):
+    """One SGD step of eqs. (9)-(17) on the gains in ``s``, with the Jacobian ``J`` (3, 2).
+
+    ``K <- clip(K + mu o (dU/dK)^T J^T T_e(theta)^T Gamma e, K_min, K_max)`` with the regressor
+    ``dU/dK`` of the previous step (stored by :func:`pid_output`), i.e. the gradient
+    ``dF/dK = -e^T Gamma T_e J dU/dK`` of eq. (17) (sign as in E5).
+    """
+    T = rotation(theta, p.printed_rotation)
+    ge = np.empty(3)  # Gamma e
+    for i in range(3):
+        ge[i] = p.alpha[i] * e[i]
+    te = T.T @ ge  # T_e^T Gamma e, (3,)
+    g0 = J[0, 0] * te[0] + J[1, 0] * te[1] + J[2, 0] * te[2]  # (J^T T_e^T Gamma e)_v
+    g1 = J[0, 1] * te[0] + J[1, 1] * te[1] + J[2, 1] * te[2]  # (...)_w
+    phi = s[S_PHI : S_PHI + 6]
+    for i in range(6):
+        g = g0 if i < 3 else g1
+        k = s[S_K + i] + p.mu[i] * g * phi[i]
+        s[S_K + i] = min(max(k, p.K_min[i]), p.K_max[i])
+
+
+@njit
+def store_jacobian(s, J):
+    for i in range(3):
+        for j in range(2):
+            s[S_J + 2 * i + j] = J[i, j]
+
+
+@njit
+def remember(s, q_hat, u):
+    """Keep ``u_k`` and ``q_hat_k`` for the next step's causal Jacobian (E5b)."""
+    s[S_U] = u[0]
+    s[S_U + 1] = u[1]
+    for i in range(3):
+        s[S_Q + i] = q_hat[i]
+    s[S_STARTED] = 1.0
+
+
+@njit
+def law(p, s, W, P, q_hat, ref, dt, u):
+    """``pid`` / ``adaptive-pid``: SGD step with the exact ZOH plant Jacobian, then eq. (7)."""
+    e = tracking_error(q_hat, ref, p.printed_rotation)
+    if p.adaptive != 0 and s[S_STARTED] != 0.0:
+        _, J = step_jacobians(s[S_Q : S_Q + 3], s[S_U : S_U + 2], dt, p.integrator)
+        store_jacobian(s, J)
+        sgd_gain_step(p, s, J, e, q_hat[2])
+    pid_output(p, s, e, ref, dt, u)
+    remember(s, q_hat, u)
