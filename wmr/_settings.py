@@ -15,7 +15,40 @@ import typing
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["SettingError", "from_table", "check", "finite", "positive", "nonnegative"]
+__all__ = ["FrozenMap", "SettingError", "from_table", "check", "finite", "positive", "nonnegative"]
+
+
+class FrozenMap(Mapping):
+    """A read-only, picklable mapping (``types.MappingProxyType`` cannot be pickled to workers)."""
+
+    __slots__ = ("_data",)
+
+    def __init__(self, data=()):
+        object.__setattr__(self, "_data", dict(data))
+
+    def __getitem__(self, key):
+        return self._data[key]
+
+    def __iter__(self):
+        return iter(self._data)
+
+    def __len__(self):
+        return len(self._data)
+
+    def __repr__(self):
+        return f"FrozenMap({self._data!r})"
+
+    def __eq__(self, other):
+        return isinstance(other, Mapping) and dict(self.items()) == dict(other.items())
+
+    def __hash__(self):
+        return hash(tuple(sorted(self._data.items(), key=repr)))
+
+    def __getstate__(self):
+        return self._data
+
+    def __setstate__(self, state):
+        object.__setattr__(self, "_data", dict(state))
 
 
 class SettingError(ValueError):

@@ -17,11 +17,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from types import MappingProxyType
 from typing import Any
 
 from wmr import controllers
-from wmr._settings import SettingError, check, from_table, nonnegative, positive
+from wmr._settings import FrozenMap, SettingError, check, from_table, nonnegative, positive
 from wmr.kinematics import INTEGRATORS
 from wmr.references import KINDS
 
@@ -67,7 +66,7 @@ class ReferenceSpec:
 
     def __post_init__(self):
         check(self.kind in KINDS, "kind", self.kind, f"unknown kind (known: {', '.join(KINDS)})")
-        object.__setattr__(self, "params", MappingProxyType(dict(self.params)))
+        object.__setattr__(self, "params", FrozenMap(self.params))
 
 
 @dataclass(frozen=True)
@@ -160,7 +159,7 @@ class Scenario:
     source: str = "<scenario>"
 
     def __post_init__(self):
-        object.__setattr__(self, "controllers", MappingProxyType(dict(self.controllers)))
+        object.__setattr__(self, "controllers", FrozenMap(self.controllers))
 
     @property
     def n_steps(self) -> int:
