@@ -28,6 +28,7 @@ import numpy as np
 
 from wmr import controllers
 from wmr._jit import njit
+from wmr.ekf import pose_predict, pose_update
 from wmr.kinematics import integrator_code, step, wrap_angle
 from wmr.references import ReferenceSampler
 from wmr.scenario import Scenario
@@ -98,7 +99,7 @@ class RunResult:
 def _advance(
     law, p, s, W, P,
     k0, k1, dt, integrator,
-    q, q_hat, ref, noise,
+    q, q_hat, ref, noise, use_ekf, Pq, Qp, Rp,
     dist_start, dist_stop, dist_v, dist_w, v_max, w_max, bound,
     acc, status, keep, q_log, qhat_log, u_log, s_log,
 ):  # fmt: skip
@@ -109,10 +110,18 @@ def _advance(
     """
     u = np.zeros(2)
     ua = np.zeros(2)
+    z = np.zeros(3)
     for k in range(k0, k1):
         i = k - k0
         for j in range(3):
-            q_hat[j] = q[j] + noise[i, j]
+            z[j] = q[j] + noise[i, j]
+        if not use_ekf:
+            q_hat[:] = z
+        elif k == 0:  # no prior: the first estimate is the first measurement, P = R
+            q_hat[:] = z
+            Pq[:, :] = Rp
+        else:
+            pose_update(q_hat, Pq, z, Rp)
         law(p, s, W, P, q_hat, ref[i], dt, u)
         u[0] = min(max(u[0], -v_max), v_max)
         u[1] = min(max(u[1], -w_max), w_max)
@@ -132,6 +141,8 @@ def _advance(
                 ua[0] += dist_v[d]
                 ua[1] += dist_w[d]
         q[:] = step(q, ua, dt, integrator)
+        if use_ekf:  # predicts with the commanded input: the disturbance is unknown to it
+            pose_predict(q_hat, Pq, u, dt, integrator, Qp)
         if keep:
             q_log[k + 1, :] = q
         r = ref[i + 1]
@@ -216,6 +227,11 @@ def simulate(
     dist_v = np.array([x.velocity[0] for x in d], dtype=float)
     dist_w = np.array([x.velocity[1] for x in d], dtype=float)
     integ = integrator_code(scenario.integrator)
+    est = scenario.estimator
+    use_ekf = est.pose_source == "filtered" or (est.pose_source == "paper" and ctrl.uses_estimator)
+    Qp = np.diag(np.square(est.process_std))
+    Rp = np.diag(np.square(np.maximum(std, est.min_measurement_std)))
+    Pq = Rp.copy()
     acc = np.zeros(_N_ACC)
     status = np.array([-1, 0], dtype=np.int64)
 
@@ -238,7 +254,7 @@ def simulate(
         ref = np.vstack((ref_prev[-1:], sampler.rows(k0 + 1, k1 + 1)))
         noise = rng_noise.standard_normal((k1 - k0, 3)) * std
         _advance(
-            ctrl.law, p, s, W, P, k0, k1, dt, integ, q, q_hat, ref, noise,
+            ctrl.law, p, s, W, P, k0, k1, dt, integ, q, q_hat, ref, noise, use_ekf, Pq, Qp, Rp,
             dist[0], dist[1], dist_v, dist_w,
             scenario.limits.v_max, scenario.limits.w_max, scenario.divergence_bound,
             acc, status, keep, q_log, qhat_log, u_log, s_log,

@@ -17,7 +17,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from wmr.controllers import backstepping, pid
+from wmr.controllers import adaptive_nn, backstepping, iapid_nn_dekf, pid
 
 __all__ = ["Controller", "REGISTRY", "NAMES", "PAPER_NAMES", "get"]
 
@@ -38,8 +38,13 @@ class Controller:
 REGISTRY: dict[str, Controller] = {
     c.name: c
     for c in (
+        Controller("iapid-nn-dekf", iapid_nn_dekf.Settings, iapid_nn_dekf.pack,
+                   iapid_nn_dekf.law, iapid_nn_dekf.STATE_NAMES, uses_estimator=True,
+                   label="IAPID-NN-DEKF"),
         Controller("backstepping", backstepping.Settings, backstepping.pack, backstepping.law,
                    backstepping.STATE_NAMES, label="BSC"),
+        Controller("adaptive-nn", adaptive_nn.Settings, adaptive_nn.pack, adaptive_nn.law,
+                   adaptive_nn.STATE_NAMES, label="DA-NN"),
         Controller("adaptive-pid", pid.Settings, pid.pack, pid.law, pid.STATE_NAMES,
                    label="APID"),
         Controller("pid", pid.FixedSettings, pid.pack, pid.law, pid.GAIN_NAMES,

@@ -1,0 +1,137 @@
+"""DA-NN: the direct adaptive neural-network baseline (a documented design; the paper gives none).
+
+"Direct": the controller's parameters are adapted straight from the tracking error, with no plant
+identification (reproduction-notes §4.2).  Design chosen here (Fierro & Lewis-style backstepping
+plus an NN compensator, trained like the paper's DEKF)::
+
+    u_k = u_bsc(e_k) + NN_c(phi_k; W),   phi = (e1, e2, sin e3, cos e3 - 1, v_r, w_r)
+
+with ``u_bsc`` the backstepping law (same default gains) and the network's output layer starting
+at zero, so DA-NN starts as backstepping and differs only by what it learns.  The weights are the
+state of an EKF with the paper's ``P0, Q, R`` (eq. 63): at step ``k`` the "measurement" is the
+reference pose ``q_r,k`` the last input should have reached, the model is the pose it reached,
+``h(W) = q_hat_k`` with ``dh/dW = J_{k-1} dNN_c/dW(phi_{k-1})`` (``J`` the exact ZOH plant
+Jacobian), and the innovation is ``q_r,k - q_hat_k`` (heading wrapped).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import namedtuple
+from dataclasses import dataclass
+
+import numpy as np
+
+from wmr import nn
+from wmr._jit import njit
+from wmr._settings import check, positive
+from wmr.controllers import backstepping
+from wmr.ekf import repair_covariance, weight_update
+from wmr.kinematics import INTEGRATORS, step_jacobians, tracking_error, wrap_angle
+
+__all__ = ["Settings", "STATE_NAMES", "pack", "law"]
+
+N_IN = 6
+N_OUT = 2
+STATE_NAMES = ("nn_v", "nn_w", "cov_repairs")
+_S_NN = 0  # 2: network contribution to (v, w)
+_S_REPAIRS = 2
+_S_PHI = 3  # 6: previous network input
+_S_U = 9  # 2: previous input
+_S_Q = 11  # 3: previous pose estimate
+_S_STARTED = 14
+_S_SIZE = 15
+P_FLOOR = 1e-12
+
+Params = namedtuple("Params", "gains printed_rotation integrator n_h q_diag R Hn H work")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """DA-NN settings.
+
+    Attributes
+    ----------
+    gains : tuple of float
+        Backstepping gains ``(k1, k2, k3)`` of the base law (as ``backstepping``'s default).
+    hidden : int
+        Hidden tanh units of the compensator network (not in the paper).
+    p0, q, r : float
+        Weight-EKF ``P0 = p0 I``, ``Q = q I``, ``R = r I_3`` (the paper's eq. 63 values).
+    printed_rotation : bool
+        Use the paper's printed error matrix of eqs. 4/6.
+    """
+
+    gains: tuple[float, ...] = (2.0, 10.0, 4.0)
+    hidden: int = 8
+    p0: float = 1000.0
+    q: float = 1e-5
+    r: float = 1000.0
+    printed_rotation: bool = False
+
+    def __post_init__(self):
+        backstepping.Settings(self.gains)  # same checks as the base law
+        check(1 <= self.hidden <= 1000, "hidden", self.hidden, "must be in 1..1000")
+        for name in ("p0", "r"):
+            positive(name, getattr(self, name))
+        check(self.q >= 0 and math.isfinite(self.q), "q", self.q, "must be >= 0")
+
+
+def pack(settings: Settings, scenario, rng):
+    """``(p, s, W, P)``: output layer of the compensator initialised to zero."""
+    n = nn.n_weights(N_IN, settings.hidden, N_OUT)
+    W = nn.init_weights(rng, N_IN, settings.hidden, N_OUT, output_scale=0.0)
+    p = Params(np.array(settings.gains), settings.printed_rotation,
+               INTEGRATORS[scenario.integrator], settings.hidden, np.full(n, settings.q),
+               settings.r * np.eye(3), np.zeros((N_OUT, n)), np.zeros((3, n)),
+               np.zeros((3, n, 3)))  # fmt: skip
+    return p, np.zeros(_S_SIZE), W, settings.p0 * np.eye(n)
+
+
+@njit
+def _features(e, ref):
+    phi = np.empty(N_IN)
+    phi[0] = e[0]
+    phi[1] = e[1]
+    phi[2] = math.sin(e[2])
+    phi[3] = math.cos(e[2]) - 1.0
+    phi[4] = ref[3]
+    phi[5] = ref[4]
+    return phi
+
+
+@njit
+def adapt(p, s, W, P, q_hat, ref, dt):
+    """EKF step on the compensator weights from the error the last input left (see module doc)."""
+    phi = s[_S_PHI : _S_PHI + N_IN].copy()
+    _, h = nn.forward(W, phi, p.n_h, N_OUT)
+    nn.weight_jacobian(W, phi, p.n_h, N_OUT, h, p.Hn)
+    _, G = step_jacobians(s[_S_Q : _S_Q + 3], s[_S_U : _S_U + 2], dt, p.integrator)
+    p.H[:, :] = G @ p.Hn
+    innovation = np.empty(3)
+    innovation[0] = ref[0] - q_hat[0]
+    innovation[1] = ref[1] - q_hat[1]
+    innovation[2] = wrap_angle(ref[2] - q_hat[2])
+    weight_update(W, P, p.H, innovation, p.q_diag, p.R, p.work)
+    if repair_covariance(P, P_FLOOR):
+        s[_S_REPAIRS] += 1.0
+
+
+@njit
+def law(p, s, W, P, q_hat, ref, dt, u):
+    """One DA-NN step: adapt the compensator, then backstepping plus compensator."""
+    if s[_S_STARTED] != 0.0:
+        adapt(p, s, W, P, q_hat, ref, dt)
+    e = tracking_error(q_hat, ref, p.printed_rotation)
+    phi = _features(e, ref)
+    z, _ = nn.forward(W, phi, p.n_h, N_OUT)
+    v_r = ref[3]
+    u[0] = v_r * math.cos(e[2]) + p.gains[0] * e[0] + z[0]
+    u[1] = ref[4] + v_r * (p.gains[1] * e[1] + p.gains[2] * math.sin(e[2])) + z[1]
+    s[_S_NN] = z[0]
+    s[_S_NN + 1] = z[1]
+    s[_S_PHI : _S_PHI + N_IN] = phi
+    s[_S_U] = u[0]
+    s[_S_U + 1] = u[1]
+    s[_S_Q : _S_Q + 3] = q_hat
+    s[_S_STARTED] = 1.0

@@ -1,0 +1,133 @@
+"""IAPID-NN-DEKF: the paper's indirect adaptive PID (the proposed scheme).
+
+Per step ``k`` (reproduction-notes §6), with the pose estimate ``q_hat_k`` of the pose EKF:
+
+1. **Identify** (eqs. 25-31, errata E6, E8).  A series-parallel identifier
+   ``q_{k+1} ~ q_k + dt NN([v_k, w_k, cos theta_k, sin theta_k])`` is trained by the weight EKF
+   on the pair (input at ``k-1`` -> observed increment ``(q_hat_k - q_hat_{k-1}) / dt``, heading
+   difference wrapped): ``P <- P + Q``, Joseph update with ``H = dNN/dtheta`` at the *current*
+   input ``x_{k-1}`` and innovation ``d_k - NN(x_{k-1})``.  The paper's NN maps ``(v, w)`` to
+   the absolute pose, which a static map cannot represent (E6); the targets here are O(1), which
+   makes the paper's ``P0 = R = 1000 I`` meaningful (E11).
+2. **Jacobian** (eqs. 20-24, corrected by the chain rule, E7): ``J_{k-1} = dt dNN/d(v, w)`` at
+   ``x_{k-1}`` with the updated weights; the printed eqs. 22-24 behind ``printed_jacobian``.
+3. **Tune** the PID gains by the SGD step of eqs. 8-17 with that Jacobian
+   (:func:`wmr.controllers.pid.sgd_gain_step`), then apply eq. (7).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import namedtuple
+from dataclasses import dataclass
+
+import numpy as np
+
+from wmr import nn
+from wmr._jit import njit
+from wmr._settings import check, positive
+from wmr.controllers import pid
+from wmr.controllers.pid import S_NN_ERR, S_Q, S_REPAIRS, S_STARTED, S_U
+from wmr.ekf import repair_covariance, weight_update
+from wmr.kinematics import INTEGRATORS, tracking_error, wrap_angle
+
+__all__ = ["Settings", "STATE_NAMES", "N_IN", "pack", "law", "identifier_input"]
+
+#: Network inputs ``(v, w, cos theta, sin theta)``; outputs ``(x', y', theta')`` estimates.
+N_IN = 4
+N_OUT = 3
+STATE_NAMES = pid.STATE_NAMES + ("nn_error", "cov_repairs")
+#: Smallest allowed diagonal of the weight covariance before a repair is counted.
+P_FLOOR = 1e-12
+
+Params = namedtuple("Params", pid.Params._fields + ("H", "work"))
+
+
+@dataclass(frozen=True)
+class Settings(pid.Settings):
+    """IAPID-NN-DEKF settings: the PID/SGD ones plus the network and its weight filter.
+
+    Attributes
+    ----------
+    hidden : int
+        Hidden tanh units (not in the paper; 10 gives n = 83 weights).
+    p0, q, r : float
+        Weight-filter ``P0 = p0 I``, ``Q = q I``, ``R = r I_3``: the paper's eq. (63) values.
+    output_scale : float
+        Std scale of the initial output weights (small: the network starts near zero).
+    printed_jacobian : bool
+        Use the paper's printed eqs. 22-24 for the input Jacobian (errata E7).
+    """
+
+    hidden: int = 10
+    p0: float = 1000.0
+    q: float = 1e-5
+    r: float = 1000.0
+    output_scale: float = 0.1
+    printed_jacobian: bool = False
+
+    def __post_init__(self):
+        super().__post_init__()
+        check(1 <= self.hidden <= 1000, "hidden", self.hidden, "must be in 1..1000")
+        for name in ("p0", "r"):
+            positive(name, getattr(self, name))
+        check(self.q >= 0 and math.isfinite(self.q), "q", self.q, "must be >= 0")
+        check(self.output_scale >= 0, "output_scale", self.output_scale, "must be >= 0")
+
+
+def pack(settings: Settings, scenario, rng):
+    """``(p, s, W, P)``: PID parameters, network weights ``W`` (n,) and covariance ``P0``."""
+    n = nn.n_weights(N_IN, settings.hidden, N_OUT)
+    base = pid._base_params(settings, 2, INTEGRATORS[scenario.integrator], n_h=settings.hidden,
+                            printed_jacobian=settings.printed_jacobian,
+                            q_diag=np.full(n, settings.q), R=settings.r * np.eye(N_OUT))  # fmt: skip
+    p = Params(*base, H=np.zeros((N_OUT, n)), work=np.zeros((3, n, N_OUT)))
+    W = nn.init_weights(rng, N_IN, settings.hidden, N_OUT, settings.output_scale)
+    P = settings.p0 * np.eye(n)
+    return p, pid.initial_state(settings), W, P
+
+
+@njit
+def identifier_input(u, theta):
+    """The identifier's input ``(v, w, cos theta, sin theta)``."""
+    x = np.empty(N_IN)
+    x[0] = u[0]
+    x[1] = u[1]
+    x[2] = math.cos(theta)
+    x[3] = math.sin(theta)
+    return x
+
+
+@njit
+def identify(p, s, W, P, q_hat, dt):
+    """Steps 1-2: weight-EKF update on the last transition, then the identified ``J_{k-1}``."""
+    x = identifier_input(s[S_U : S_U + 2], s[S_Q + 2])
+    z, h = nn.forward(W, x, p.nn_n_h, N_OUT)
+    d = np.empty(N_OUT)
+    for i in range(2):
+        d[i] = (q_hat[i] - s[S_Q + i]) / dt
+    d[2] = wrap_angle(q_hat[2] - s[S_Q + 2]) / dt
+    innovation = d - z
+    s[S_NN_ERR] = math.sqrt(innovation @ innovation)
+    nn.weight_jacobian(W, x, p.nn_n_h, N_OUT, h, p.H)
+    weight_update(W, P, p.H, innovation, p.q_diag, p.R, p.work)
+    if repair_covariance(P, P_FLOOR):
+        s[S_REPAIRS] += 1.0
+    if p.nn_printed_jacobian:
+        Jx = nn.input_jacobian_printed(W, x, p.nn_n_h, N_OUT)
+    else:
+        _, h = nn.forward(W, x, p.nn_n_h, N_OUT)
+        Jx = nn.input_jacobian(W, x, p.nn_n_h, N_OUT, h)
+    return dt * Jx[:, 0:2].copy()
+
+
+@njit
+def law(p, s, W, P, q_hat, ref, dt, u):
+    """One IAPID-NN-DEKF step: identify, tune the gains (SGD), apply eq. (7)."""
+    e = tracking_error(q_hat, ref, p.printed_rotation)
+    if s[S_STARTED] != 0.0:
+        J = identify(p, s, W, P, q_hat, dt)
+        pid.store_jacobian(s, J)
+        pid.sgd_gain_step(p, s, J, e, q_hat[2])
+    pid.pid_output(p, s, e, ref, dt, u)
+    pid.remember(s, q_hat, u)
