@@ -115,6 +115,102 @@ def cmd_run(args) -> int:
     return 0
 
 
+#: The studies of ``analysis/`` that ``wmr analyze`` and ``wmr reproduce`` run (module names).
+STUDIES = ("jacobians", "margins", "boundedness")
+
+
+def _study(name: str):
+    """Import ``analysis.<name>`` (the CLI is the one place where wmr reaches into analysis/)."""
+    import importlib
+
+    try:
+        return importlib.import_module(f"analysis.{name}")
+    except ModuleNotFoundError as err:
+        if err.name == f"analysis.{name}" or err.name == "analysis":
+            raise UsageError(f"study {name!r} is not available in this installation") from None
+        raise
+
+
+def _staged(out: Path):
+    """A staging folder inside ``out``: studies write there; :func:`_publish` moves the files in.
+
+    An interrupted run leaves the previous results in ``out`` intact (the staging folder is
+    removed at the next start).
+    """
+    import shutil
+
+    stage = out / ".staging"
+    if stage.exists():
+        shutil.rmtree(stage)
+    stage.mkdir(parents=True)
+    return stage
+
+
+def _publish(stage: Path, out: Path) -> int:
+    """Move every file of ``stage`` to the same place in ``out`` (each by an atomic rename)."""
+    import shutil
+
+    count = 0
+    for path in sorted(p for p in stage.rglob("*") if p.is_file()):
+        target = out / path.relative_to(stage)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(path, target)
+        count += 1
+    shutil.rmtree(stage)
+    return count
+
+
+def _check_out(out: Path) -> None:
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {str(out)!r}: exists and is not a directory")
+
+
+def cmd_reproduce(args) -> int:
+    out = Path(args.out)
+    _check_out(out)
+    reproduction = _study("reproduction")
+    studies = [(name, _study(name)) for name in STUDIES if not args.skip_analyses]
+    bench = None if args.skip_bench else _study("performance")
+    report = _study("report")
+    stage = _staged(out)
+    print(f"reproduction: 3 scenarios x {args.seeds} seeds (+ ablations) on {args.workers or 'all'} workers")
+    reproduction.main(stage, seeds=args.seeds, workers=args.workers)
+    for name, module in studies:
+        print(f"analysis: {name}")
+        module.main(stage)
+    if bench is not None:
+        print("benchmark")
+        bench.main(stage, quick=False, workers=args.workers)
+    n = _publish(stage, out)
+    report.main(out)
+    print(f"wrote {n} files and {out}/report.md")
+    return 0
+
+
+def cmd_report(args) -> int:
+    out = Path(args.out)
+    if not (out / "results").is_dir():
+        raise UsageError(f"--out {str(out)!r}: no results/ folder to build the report from")
+    path = _study("report").main(out)
+    print(f"wrote {path}")
+    return 0
+
+
+def cmd_analyze(args) -> int:
+    out = Path(args.out)
+    _check_out(out)
+    _study(args.study).main(out)
+    print(f"wrote the {args.study} results into {out}")
+    return 0
+
+
+def cmd_bench(args) -> int:
+    out = Path(args.out)
+    _check_out(out)
+    _study("performance").main(out, quick=args.quick, workers=args.workers)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="wmr", description="Adaptive trajectory tracking of wheeled mobile robots.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -125,6 +221,31 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--seed", type=_nonnegative_int, help="seed (default: the scenario's)")
     run.add_argument("--out", help="output folder (default: wmr-runs/<scenario name>)")
     run.set_defaults(func=cmd_run)
+
+    rep = sub.add_parser("reproduce", help="the paper's scenarios x controllers x seeds, the "
+                         "analyses, the benchmark and the report, into --out")  # fmt: skip
+    rep.add_argument("--seeds", type=_positive_int, default=20, help="seeds per run (default 20)")
+    rep.add_argument("--out", default="paper", help="output folder (default: paper)")
+    rep.add_argument("--workers", type=_positive_int, default=None,
+                     help="worker processes (default: all cores)")  # fmt: skip
+    rep.add_argument("--skip-analyses", action="store_true", help="only the reproduction runs")
+    rep.add_argument("--skip-bench", action="store_true", help="do not run the benchmark")
+    rep.set_defaults(func=cmd_reproduce)
+
+    report = sub.add_parser("report", help="rebuild report.md from the stored results")
+    report.add_argument("--out", default="paper", help="folder with results/ (default: paper)")
+    report.set_defaults(func=cmd_report)
+
+    ana = sub.add_parser("analyze", help="run one analysis study")
+    ana.add_argument("study", choices=STUDIES)
+    ana.add_argument("--out", default="paper", help="output folder (default: paper)")
+    ana.set_defaults(func=cmd_analyze)
+
+    bench = sub.add_parser("bench", help="the side-by-side performance benchmark")
+    bench.add_argument("--quick", action="store_true", help="a short benchmark (< 2 minutes)")
+    bench.add_argument("--out", default="paper", help="output folder (default: paper)")
+    bench.add_argument("--workers", type=_positive_int, default=None)
+    bench.set_defaults(func=cmd_bench)
     return parser
 
 
