@@ -92,6 +92,13 @@ def _reproduction(out: Path, rep: dict) -> list[str]:
         if table.exists():
             lines += table.read_text().splitlines() + [""]
     lines += ["## Does the paper's ranking appear?", ""]
+    reproduced = [v for e in rep["scenarios"].values() for v in e["paper_ranking_reproduced"].values()]
+    best = {sc: e["ranking"]["default"]["position"][0] for sc, e in rep["scenarios"].items()}
+    n_best = sum(1 for b in best.values() if b == "iapid-nn-dekf")
+    lines += [f"**Verdict.** The paper's order of the four controllers is reproduced on "
+              f"{sum(reproduced)} of {len(reproduced)} (scenario, axis) pairs.  IAPID-NN-DEKF has the "
+              f"lowest mean position RMSE in {n_best} of {len(best)} scenarios (best: "
+              + ", ".join(f"{sc}: {_label(b)}" for sc, b in best.items()) + ").", ""]  # fmt: skip
     for sc, entry in rep["scenarios"].items():
         ours = entry["ranking"]["default"]
         lines.append(f"**{sc}.**")

@@ -79,7 +79,7 @@ class RunResult:
     q_hat: np.ndarray | None = None
     u: np.ndarray | None = None
     state: np.ndarray | None = None
-    extra: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)  # final controller state: W, P, s; pose-EKF P
 
     def summary(self) -> dict:
         """The JSON record of DESIGN §3.2 (``null`` for the RMSE of a diverged run)."""
@@ -284,6 +284,7 @@ def simulate(
         dt=dt, n_steps=n, rmse=rmse, rmse_robot_frame=rmse_rf, diverged=bool(diverged),
         diverged_at=steps * dt if diverged else None, cause=CAUSES[int(status[1])],
         state_names=state_names,
+        extra={"W": W, "P": P, "s": s, "q_hat": q_hat, "P_pose": Pq if use_ekf else None},
     )  # fmt: skip
     if keep:
         result.t = np.arange(steps + 1) * dt
