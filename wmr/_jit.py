@@ -1,16 +1,39 @@
 """The one JIT decorator of wmr.
 
 Every numerical kernel of the closed loop is compiled with numba (DESIGN §6: a jitted step is
-~100x faster than the same numpy code).  Kernels are cached on disk next to their module, so a
-process pays compilation only the first time.  Set ``NUMBA_DISABLE_JIT=1`` to debug them as
-plain Python.
+~100x faster than the same numpy code).  Kernels are cached on disk, so a process pays
+compilation only the first time.  Set ``NUMBA_DISABLE_JIT=1`` to debug them as plain Python.
+
+numba's cache checks only the timestamp of a function's own file, not of the jitted functions it
+calls in other modules, so a cached kernel could outlive a change to one of its callees.  Unless
+``NUMBA_CACHE_DIR`` is set by the user, the cache therefore lives in a folder named by a hash of
+the whole package's source: any change to ``wmr`` starts from a fresh cache.
 """
 
 from __future__ import annotations
 
+import hashlib
+import os
+from pathlib import Path
+
 import numba
 
-__all__ = ["njit"]
+__all__ = ["njit", "CACHE_DIR"]
+
+
+def _cache_dir() -> str:
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return os.environ["NUMBA_CACHE_DIR"]
+    package = Path(__file__).resolve().parent
+    digest = hashlib.sha256()
+    for path in sorted(package.rglob("*.py")):
+        digest.update(str(path.relative_to(package)).encode())
+        digest.update(path.read_bytes())
+    return str(package / "__pycache__" / f"numba-{digest.hexdigest()[:16]}")
+
+
+CACHE_DIR = _cache_dir()
+numba.config.CACHE_DIR = CACHE_DIR
 
 
 def njit(fn=None, **kwargs):

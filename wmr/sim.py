@@ -22,6 +22,7 @@ not depend on memory or on how a run is split.
 from __future__ import annotations
 
 import math
+import types
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -95,15 +96,16 @@ class RunResult:
         }
 
 
-@njit
-def _advance(
-    law, p, s, W, P,
+def _advance_template(
+    p, s, W, P,
     k0, k1, dt, integrator,
     q, q_hat, ref, noise, use_ekf, Pq, Qp, Rp,
     dist_start, dist_stop, dist_v, dist_w, v_max, w_max, bound,
     acc, status, keep, q_log, qhat_log, u_log, s_log,
 ):  # fmt: skip
     """Advance the loop over steps ``k0 .. k1-1``; ``ref`` holds rows ``k0 .. k1``.
+
+    Compiled once per controller law by :func:`kernel` (``law`` is a global of the copy).
 
     Mutates ``q``, ``q_hat``, the controller state ``s, W, P``, the accumulators ``acc`` and,
     when ``keep``, the logs.  On divergence writes ``status = (step, cause)`` and returns early.
@@ -167,6 +169,28 @@ def _advance(
             status[0] = k + 1
             status[1] = 2
             return
+
+
+_KERNELS: dict = {}
+
+
+def kernel(name: str, law):
+    """The loop of ``_advance_template`` compiled for one controller ``law`` (cached on disk).
+
+    Each controller gets its own copy of the template function with ``law`` bound as a global
+    and its own qualified name, so numba caches one kernel per controller (a jitted function
+    taking the law as a first-class argument cannot be cached reliably).
+    """
+    key = (name, law)
+    if key not in _KERNELS:
+        template = _advance_template
+        fn = types.FunctionType(template.__code__, {**template.__globals__, "law": law},
+                                f"_advance_{name}", template.__defaults__, template.__closure__)  # fmt: skip
+        fn.__qualname__ = f"_advance_{name.replace('-', '_')}"
+        fn.__module__ = template.__module__
+        fn.__doc__ = template.__doc__
+        _KERNELS[key] = njit(fn)
+    return _KERNELS[key]
 
 
 def _accumulate_initial(q, ref0, acc):
@@ -243,6 +267,7 @@ def simulate(
     s_log = np.full((rows - 1 if keep else 0, len(state_names)), np.nan)
     ref_log = np.empty((rows, 5)) if keep else None
 
+    advance = kernel(controller, ctrl.law)
     sampler = ReferenceSampler(scenario.reference.kind, scenario.reference.params, dt)
     ref_prev = sampler.rows(0, 1)
     _accumulate_initial(q, ref_prev[0], acc)
@@ -253,8 +278,8 @@ def simulate(
         k1 = min(k0 + CHUNK, n)
         ref = np.vstack((ref_prev[-1:], sampler.rows(k0 + 1, k1 + 1)))
         noise = rng_noise.standard_normal((k1 - k0, 3)) * std
-        _advance(
-            ctrl.law, p, s, W, P, k0, k1, dt, integ, q, q_hat, ref, noise, use_ekf, Pq, Qp, Rp,
+        advance(
+            p, s, W, P, k0, k1, dt, integ, q, q_hat, ref, noise, use_ekf, Pq, Qp, Rp,
             dist[0], dist[1], dist_v, dist_w,
             scenario.limits.v_max, scenario.limits.w_max, scenario.divergence_bound,
             acc, status, keep, q_log, qhat_log, u_log, s_log,
