@@ -61,6 +61,7 @@ limit ``dx+/dw = -v dt^2 sin(theta) / 2``.
 from __future__ import annotations
 
 import functools
+import numbers
 
 import casadi as ca
 
@@ -499,7 +500,7 @@ def _check_integrator(integrator: str) -> None:
 
 def _check_sizes(n_in: int, n_h: int, n_out: int) -> None:
     for name, n in (("n_in", n_in), ("n_h", n_h), ("n_out", n_out)):
-        if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+        if not isinstance(n, numbers.Integral) or isinstance(n, bool) or n < 1:
             raise ValueError(f"{name} must be a positive int, got {n!r}")
 
 
@@ -522,7 +523,7 @@ def _step(q, u, dt, integrator):
     if integrator == "exact":
         v, w = u[0], u[1]
         a = 0.5 * w * dt
-        chord = v * dt * _sinc(a)  # length of the chord of the arc
+        chord = v * dt * _sinc(a)  # signed length of the arc's chord
         return ca.vertcat(
             q[0] + chord * ca.cos(q[2] + a), q[1] + chord * ca.sin(q[2] + a), q[2] + w * dt
         )
