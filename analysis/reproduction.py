@@ -67,6 +67,14 @@ def _pose_source(source: str):
     return apply
 
 
+def _noise(factor: float):
+    def apply(sc, st):
+        std = tuple(factor * s for s in sc.noise.pose_std)
+        return dataclasses.replace(sc, noise=dataclasses.replace(sc.noise, pose_std=std)), st
+
+    return apply
+
+
 def _settings(**changes):
     return lambda sc, st: (sc, _with(st, **changes))
 
@@ -81,6 +89,7 @@ def _bsc_gains(gains):
 
 _PID_FAMILY = ("pid", "adaptive-pid", "iapid-nn-dekf")
 _ADAPTIVE = ("adaptive-pid", "iapid-nn-dekf")
+_ALL = ("iapid-nn-dekf", "backstepping", "adaptive-nn", "adaptive-pid", "pid")
 #: Ablations: name -> (controllers it applies to, transform(scenario, settings)), and its meaning.
 VARIANTS: dict[str, tuple[tuple[str, ...], Callable, str]] = {
     "rotation-printed": (("backstepping", "pid", "adaptive-pid", "iapid-nn-dekf", "adaptive-nn"),
@@ -98,6 +107,8 @@ VARIANTS: dict[str, tuple[tuple[str, ...], Callable, str]] = {
                       "backstepping gains (0.5, 2, 1.4): slow, critically damped"),
     "bsc-gains-kanayama": (("backstepping",), _bsc_gains((10.0, 64.0, 16.0)),
                            "backstepping gains (10, 64, 16) of Kanayama et al. (1990)"),
+    "noise-free": (_ALL, _noise(0.0), "no pose-measurement noise"),
+    "noise-x3": (_ALL, _noise(3.0), "pose-measurement noise std x3 (0.03 m, 0.03 rad)"),
     "mu-x0.1": (_ADAPTIVE, _scale_mu(0.1), "SGD learning rates mu scaled by 0.1"),
     "mu-x10": (_ADAPTIVE, _scale_mu(10.0), "SGD learning rates mu scaled by 10"),
 }  # fmt: skip

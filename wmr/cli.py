@@ -116,7 +116,7 @@ def cmd_run(args) -> int:
 
 
 #: The studies of ``analysis/`` that ``wmr analyze`` and ``wmr reproduce`` run (module names).
-STUDIES = ("jacobians", "margins", "boundedness")
+STUDIES = ("jacobians", "margins", "boundedness", "reliability")
 
 
 def _study(name: str):
