@@ -266,13 +266,17 @@ def write_figures(scenarios: dict, out: Path, seed: int = 0) -> list[str]:
     names = [n for n in controllers.PAPER_NAMES if n in controllers.REGISTRY]
     runs = {sc: [simulate(s, n, seed) for n in names] for sc, s in scenarios.items()}
     written = []
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.6), layout="constrained")
+    fig = plt.figure(figsize=(14, 6.5), layout="constrained")
+    grid = fig.add_gridspec(2, 2, width_ratios=(1, 1.4))
+    axes = [fig.add_subplot(grid[:, 0]), fig.add_subplot(grid[0, 1]), fig.add_subplot(grid[1, 1])]
     for ax, (sc, rs) in zip(axes, runs.items(), strict=True):
         ax.plot(rs[0].ref[:, 0], rs[0].ref[:, 1], "k--", lw=1.5, label="reference")
         for r in rs:
             ax.plot(r.q[:, 0], r.q[:, 1], color=COLORS[r.controller], lw=1.1,
                     label=controllers.get(r.controller).label)  # fmt: skip
-        ax.set(title=sc, xlabel="x [m]", ylabel="y [m]", aspect="equal")
+        ax.set(title=sc, xlabel="x [m]", ylabel="y [m]")
+        ax.grid(alpha=0.3)
+    axes[0].set_aspect("equal")
     axes[0].legend(fontsize=8)
     fig.suptitle(f"Figure 4 equivalent: tracking of the three scenarios (seed {seed})")
     save_figure(fig, out / "figures" / "fig04_paths.png")
