@@ -15,7 +15,17 @@ import typing
 from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["FrozenMap", "SettingError", "from_table", "check", "finite", "positive", "nonnegative"]
+__all__ = [
+    "FrozenMap",
+    "SettingError",
+    "from_table",
+    "check",
+    "number",
+    "finite",
+    "positive",
+    "nonnegative",
+    "one_line",
+]
 
 
 class FrozenMap(Mapping):
@@ -51,18 +61,44 @@ class FrozenMap(Mapping):
         object.__setattr__(self, "_data", dict(state))
 
 
+def one_line(text: str) -> str:
+    """``text`` with non-printable characters escaped, so a message naming it stays one line.
+
+    TOML allows any character in quoted keys and file names may hold newlines; the error contract
+    (DESIGN §3.2) is a single line.
+    """
+    text = str(text)
+    return text if text.isprintable() else text.encode("unicode_escape").decode("ascii")
+
+
 class SettingError(ValueError):
     """An invalid setting: ``key`` (dotted path), offending ``value`` and the ``reason``."""
 
     def __init__(self, key: str, value: Any, reason: str):
         self.key, self.value, self.reason = key, value, reason
-        super().__init__(f"{key} = {value!r}: {reason}")
+        super().__init__(f"{one_line(key)} = {value!r}: {reason}")
 
 
 def check(ok: bool, key: str, value: Any, reason: str) -> None:
     """Raise :class:`SettingError` unless ``ok``."""
     if not ok:
         raise SettingError(key, value, reason)
+
+
+def number(key: str, value: Any) -> float:
+    """``value`` as a finite float.
+
+    :class:`SettingError` for non-numbers (bools included), NaN/inf and integers too large for a
+    float.
+    """
+    ok = isinstance(value, int | float) and not isinstance(value, bool)
+    check(ok, key, value, "must be a number")
+    try:
+        out = float(value)
+    except OverflowError:  # a Python int beyond 1.8e308 (from_dict callers; TOML ints are 64-bit)
+        out = math.inf
+    check(math.isfinite(out), key, value, "must be a finite number")
+    return out
 
 
 def finite(key: str, value: float) -> None:
@@ -86,10 +122,7 @@ def _convert(key: str, value: Any, annotation: Any, default: Any) -> Any:
         check(isinstance(value, int) and not isinstance(value, bool), key, value, "must be an integer")
         return value
     if annotation is float:
-        ok = isinstance(value, int | float) and not isinstance(value, bool)
-        check(ok, key, value, "must be a number")
-        finite(key, float(value))
-        return float(value)
+        return number(key, value)
     if annotation is str:
         check(isinstance(value, str), key, value, "must be a string")
         return value
@@ -110,7 +143,8 @@ def from_table(cls: type, table: Mapping[str, Any], where: str) -> Any:
 
     Unknown keys, wrong types, non-finite numbers and wrong tuple lengths raise
     :class:`SettingError` with the full dotted key; so does any :class:`SettingError` or
-    ``ValueError`` raised by the class's ``__post_init__``.
+    ``ValueError`` raised by the class's ``__post_init__`` (a plain ``ValueError`` is reported
+    against the table ``where``).
     """
     if not isinstance(table, Mapping):
         raise SettingError(where, table, "must be a table")
@@ -136,3 +170,6 @@ def from_table(cls: type, table: Mapping[str, Any], where: str) -> Any:
     except SettingError as err:
         key = err.key if err.key.startswith(prefix) or not prefix else f"{prefix}{err.key}"
         raise SettingError(key, err.value, err.reason) from None
+    except ValueError as err:  # e.g. zip(strict=True) in a __post_init__: still a bad table
+        reason = (str(err).splitlines() or ["invalid settings"])[0]
+        raise SettingError(where, dict(table), reason) from None

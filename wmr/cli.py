@@ -90,7 +90,10 @@ def cmd_run(args) -> int:
     for r in runs:
         if r.diverged:
             print(f"note: {r.controller} diverged at t = {r.diverged_at:.2f} s: {r.cause}")
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:  # e.g. a parent of --out is a file, or no permission: bad option
+        raise UsageError(f"--out {str(out)!r}: cannot create the folder: {err.strerror}") from None
     write_json(out / "summary.json", summary)
     for r in runs:
         header = ["t", "x", "y", "theta", "x_r", "y_r", "theta_r", "v_r", "w_r",
@@ -108,7 +111,9 @@ def cmd_run(args) -> int:
         write_csv(out / f"trajectory-{r.controller}.csv", header, rows)
     import matplotlib.pyplot as plt
 
-    fig = tracking_figure(runs, title=f"{sc.name} (seed {seed})")
+    # a literal "$" in the name would start matplotlib mathtext (and "$\\frac$" fails to parse)
+    title = f"{sc.name} (seed {seed})".replace("$", r"\$")
+    fig = tracking_figure(runs, title=title)
     save_figure(fig, out / "tracking.png")
     plt.close(fig)
     print(f"wrote {out}/summary.json, trajectory-*.csv, tracking.png")

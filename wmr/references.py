@@ -44,34 +44,44 @@ def path_derivatives(kind: str, params: Mapping[str, float], t):
     - circle: ``phi = 2 pi t / period``, ``x = radius cos(phi)``, ``y = radius sin(phi)``.
     """
     t = np.asarray(t, dtype=float)
+    if kind not in KINDS:
+        raise ValueError(f"unknown reference kind {kind!r}; expected one of {sorted(KINDS)}")
+    # absurd parameters (a period of 1e-200 s) overflow: return IEEE inf/nan, which the simulator
+    # reports as a non-finite divergence, instead of raising or warning
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _path_derivatives(kind, params, t)
+
+
+def _path_derivatives(kind, params, t):
     if kind == "lemniscate":
         a, W = params["size"], 2.0 * math.pi / params["period"]
         phi = W * t
         s1, c1, s2, c2 = np.sin(phi), np.cos(phi), np.sin(2 * phi), np.cos(2 * phi)
-        return a * s1, 0.5 * a * s2, a * W * c1, a * W * c2, -a * W**2 * s1, -2 * a * W**2 * s2
+        W2 = W * W  # not W**2: float ** raises OverflowError where * gives inf
+        return a * s1, 0.5 * a * s2, a * W * c1, a * W * c2, -a * W2 * s1, -2 * a * W2 * s2
     if kind == "sinusoid":
         s, A, w = params["speed"], params["amplitude"], params["omega"]
         sn, cs = np.sin(w * t), np.cos(w * t)
         zero = np.zeros_like(t)
         return s * t, A * sn, s + zero, A * w * cs, zero, -A * w * w * sn
-    if kind == "circle":
-        R, W = params["radius"], 2.0 * math.pi / params["period"]
-        phi = W * t
-        sn, cs = np.sin(phi), np.cos(phi)
-        return R * cs, R * sn, -R * W * sn, R * W * cs, -R * W**2 * cs, -R * W**2 * sn
-    raise ValueError(f"unknown reference kind {kind!r}; expected one of {sorted(KINDS)}")
+    # circle
+    R, W = params["radius"], 2.0 * math.pi / params["period"]
+    phi = W * t
+    sn, cs = np.sin(phi), np.cos(phi)
+    W2 = W * W
+    return R * cs, R * sn, -R * W * sn, R * W * cs, -R * W2 * cs, -R * W2 * sn
 
 
 def _columns(kind, params, t):
     """Columns of a reference sample except that theta_r is wrapped (atan2)."""
     x, y, xd, yd, xdd, ydd = path_derivatives(kind, params, t)
-    speed2 = xd * xd + yd * yd
     out = np.empty((np.size(t), 5))
-    out[:, 0] = x
-    out[:, 1] = y
-    out[:, 2] = np.arctan2(yd, xd)
-    out[:, 3] = np.sqrt(speed2)
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # see path_derivatives
+        speed2 = xd * xd + yd * yd
+        out[:, 0] = x
+        out[:, 1] = y
+        out[:, 2] = np.arctan2(yd, xd)
+        out[:, 3] = np.sqrt(speed2)
         out[:, 4] = np.where(speed2 > 0.0, (xd * ydd - yd * xdd) / speed2, 0.0)
     return out
 
@@ -95,15 +105,19 @@ class ReferenceSampler:
         """Rows for ``k = k0 .. k1 - 1``; chunks must be requested in order from 0."""
         if k0 != self._next_k:
             raise ValueError(f"chunks must be consecutive: expected k0={self._next_k}, got {k0}")
+        if k1 < k0:
+            raise ValueError(f"chunk ends before it starts: k0={k0}, k1={k1}")
         out = _columns(self.kind, self.params, np.arange(k0, k1) * self.dt)
+        if k1 == k0:
+            return out
         wrapped = out[:, 2].copy()
         prev = wrapped[0] if self._last_wrapped is None else self._last_wrapped
-        jumps = np.diff(np.concatenate(([prev], wrapped)))
-        turns = self._turns - np.cumsum(np.rint(jumps / (2 * math.pi)).astype(np.int64))
+        jumps = np.rint(np.diff(np.concatenate(([prev], wrapped))) / (2 * math.pi))
+        jumps[~np.isfinite(jumps)] = 0.0  # a non-finite heading (absurd parameters) adds no turn
+        turns = self._turns - np.cumsum(jumps.astype(np.int64))
         out[:, 2] = wrapped + 2 * math.pi * turns
-        if k1 > k0:
-            self._turns = int(turns[-1])
-            self._last_wrapped = float(wrapped[-1])
+        self._turns = int(turns[-1])
+        self._last_wrapped = float(wrapped[-1])
         self._next_k = k1
         return out
 

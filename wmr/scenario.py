@@ -20,7 +20,16 @@ from pathlib import Path
 from typing import Any
 
 from wmr import controllers
-from wmr._settings import FrozenMap, SettingError, check, from_table, nonnegative, positive
+from wmr._settings import (
+    FrozenMap,
+    SettingError,
+    check,
+    from_table,
+    nonnegative,
+    number,
+    one_line,
+    positive,
+)
 from wmr.kinematics import INTEGRATORS
 from wmr.references import KINDS
 
@@ -54,7 +63,7 @@ class ScenarioError(ValueError):
     def __init__(self, source: str, key: str, value: Any, reason: str):
         self.source, self.key, self.value, self.reason = source, key, value, reason
         shown = "" if value is None else f" = {value!r}"
-        super().__init__(f"{source}: {key}{shown}: {reason}")
+        super().__init__(f"{one_line(source)}: {one_line(key)}{shown}: {reason}")
 
 
 @dataclass(frozen=True)
@@ -65,7 +74,8 @@ class ReferenceSpec:
     params: Mapping[str, float]
 
     def __post_init__(self):
-        check(self.kind in KINDS, "kind", self.kind, f"unknown kind (known: {', '.join(KINDS)})")
+        check(isinstance(self.kind, str) and self.kind in KINDS, "kind", self.kind,
+              f"unknown kind (known: {', '.join(KINDS)})")  # fmt: skip
         object.__setattr__(self, "params", FrozenMap(self.params))
 
 
@@ -184,21 +194,17 @@ _TOP_KEYS = {
 }  # fmt: skip
 
 
-def _number(key: str, value: Any) -> float:
-    ok = isinstance(value, int | float) and not isinstance(value, bool)
-    check(ok, key, value, "must be a number")
-    check(math.isfinite(value), key, value, "must be a finite number")
-    return float(value)
-
-
 def _build(data: Mapping[str, Any], source: str) -> Scenario:
     for key in data:
         check(key in _TOP_KEYS, key, data[key], f"unknown key (known: {', '.join(sorted(_TOP_KEYS))})")
     name = _require(data, "name", "")
     check(isinstance(name, str) and name.strip() != "", "name", name, "must be a non-empty string")
-    duration = _number("duration", _require(data, "duration", ""))
+    # the name becomes a folder (``wmr run``'s default --out is wmr-runs/<name>)
+    safe = name.isprintable() and "/" not in name and "\\" not in name and name.strip(".") != ""
+    check(safe, "name", name, "must be usable as a folder name (printable, no / or \\, not ..)")
+    duration = number("duration", _require(data, "duration", ""))
     positive("duration", duration)
-    dt = _number("dt", _require(data, "dt", ""))
+    dt = number("dt", _require(data, "dt", ""))
     positive("dt", dt)
     check(dt <= duration, "dt", dt, f"must be <= duration = {duration}")
     steps = duration / dt
@@ -212,10 +218,10 @@ def _build(data: Mapping[str, Any], source: str) -> Scenario:
     pose = _require(data, "initial_pose", "")
     check(isinstance(pose, list), "initial_pose", pose, "must be an array [x, y, theta]")
     check(len(pose) == 3, "initial_pose", pose, f"must have 3 elements, has {len(pose)}")
-    pose_t = tuple(_number(f"initial_pose[{i}]", p) for i, p in enumerate(pose))
+    pose_t = tuple(number(f"initial_pose[{i}]", p) for i, p in enumerate(pose))
     integrator = data.get("integrator", "exact")
     check(
-        integrator in INTEGRATORS,
+        isinstance(integrator, str) and integrator in INTEGRATORS,
         "integrator",
         integrator,
         f"unknown integrator (known: {', '.join(INTEGRATORS)})",
@@ -223,20 +229,21 @@ def _build(data: Mapping[str, Any], source: str) -> Scenario:
     seed = data.get("seed", 0)
     check(isinstance(seed, int) and not isinstance(seed, bool) and seed >= 0, "seed", seed,
           "must be an integer >= 0")  # fmt: skip
-    bound = _number("divergence_bound", data.get("divergence_bound", 10.0))
+    bound = number("divergence_bound", data.get("divergence_bound", 10.0))
     positive("divergence_bound", bound)
 
     ref = _require(data, "reference", "")
     check(isinstance(ref, Mapping), "reference", ref, "must be a table")
     kind = _require(ref, "kind", "reference.")
-    check(kind in KINDS, "reference.kind", kind, f"unknown kind (known: {', '.join(KINDS)})")
+    check(isinstance(kind, str) and kind in KINDS, "reference.kind", kind,
+          f"unknown kind (known: {', '.join(KINDS)})")  # fmt: skip
     params = {}
     for key in ref:
         if key != "kind":
             check(key in KINDS[kind], f"reference.{key}", ref[key],
                   f"unknown key for kind {kind!r} (known: kind, {', '.join(KINDS[kind])})")  # fmt: skip
     for key in KINDS[kind]:
-        params[key] = _number(f"reference.{key}", _require(ref, key, "reference."))
+        params[key] = number(f"reference.{key}", _require(ref, key, "reference."))
     for key in ("size", "period", "speed", "radius"):
         if key in params:
             positive(f"reference.{key}", params[key])

@@ -1,0 +1,414 @@
+"""Shared test data: a valid scenario text and the catalogue of invalid ones.
+
+Imported by ``test_scenario.py`` (the loader) and ``test_cli.py`` (the same cases through
+``wmr run``), so both check one list.  Each invalid case is an edit of :data:`BASE_TOML` plus the
+dotted key and the text of the value that the one-line error message must name.
+"""
+
+from __future__ import annotations
+
+import copy
+import datetime
+import json
+from dataclasses import dataclass
+
+import pytest
+from hypothesis import strategies as st
+
+from wmr.kinematics import INTEGRATORS
+from wmr.references import KINDS
+
+#: A valid, short scenario exercising every section (2 s, 200 steps).
+BASE_TOML = """\
+name = "case"
+duration = 2.0
+dt = 0.01
+initial_pose = [0.0, -0.7, 1.5707963267948966]
+integrator = "exact"
+seed = 0
+
+[reference]
+kind = "circle"
+radius = 1.0
+period = 20.0
+
+[noise]
+pose_std = [0.01, 0.01, 0.01]
+
+[[disturbance]]
+start = 0.5
+stop = 1.0
+velocity = [0.1, 0.3]
+
+[limits]
+v_max = 2.0
+w_max = 5.0
+
+[controllers.backstepping]
+gains = [2.0, 10.0, 4.0]
+"""
+
+
+@dataclass(frozen=True)
+class Invalid:
+    """An invalid scenario: each ``(old, new)`` of ``edits`` is applied to the base text."""
+
+    id: str
+    edits: tuple[tuple[str, str], ...]
+    key: str  # the dotted key the error must name
+    value: str | None  # text that must appear in the message (the offending value), if any
+
+    def text(self) -> str:
+        text = BASE_TOML
+        for old, new in self.edits:
+            assert text.count(old) == 1, f"case {self.id}: {old!r} is not unique"
+            text = text.replace(old, new)
+        return text
+
+
+def _case(id: str, old: str, new: str, key: str, value: str | None) -> Invalid:
+    return Invalid(id, ((old, new),), key, value)
+
+
+def _top(line: str) -> str:
+    """Insert ``line`` among the top-level keys (before the first table header)."""
+    return f'name = "case"\n{line}'
+
+
+INVALID: tuple[Invalid, ...] = (
+    _case("syntax", "dt = 0.01", "dt = = 0.01", "(syntax)", None),
+    _case(
+        "syntax-unclosed-array", "gains = [2.0, 10.0, 4.0]", "gains = [2.0, 10.0", "(syntax)", None
+    ),
+    _case("missing-name", 'name = "case"\n', "", "name", None),
+    _case("missing-dt", "dt = 0.01\n", "", "dt", None),
+    _case("missing-reference-param", "radius = 1.0\n", "", "reference.radius", None),
+    _case(
+        "missing-reference",
+        '[reference]\nkind = "circle"\nradius = 1.0\nperiod = 20.0\n',
+        "",
+        "reference",
+        None,
+    ),
+    _case("missing-disturbance-stop", "stop = 1.0\n", "", "disturbance[0].stop", None),
+    _case("type-dt-string", "dt = 0.01", 'dt = "0.01"', "dt", "'0.01'"),
+    _case("type-duration-bool", "duration = 2.0", "duration = true", "duration", "True"),
+    _case("type-name-number", 'name = "case"', "name = 3", "name", "3"),
+    _case(
+        "type-pose-table",
+        "initial_pose = [0.0, -0.7, 1.5707963267948966]",
+        "initial_pose = {x = 0.0}",
+        "initial_pose",
+        "{'x': 0.0}",
+    ),
+    _case(
+        "type-pose-element",
+        "initial_pose = [0.0, -0.7, 1.5707963267948966]",
+        'initial_pose = [0.0, "a", 1.0]',
+        "initial_pose[1]",
+        "'a'",
+    ),
+    _case(
+        "type-noise-element",
+        "pose_std = [0.01, 0.01, 0.01]",
+        'pose_std = [0.01, "x", 0.01]',
+        "noise.pose_std[1]",
+        "'x'",
+    ),
+    _case(
+        "type-integrator-array",
+        'integrator = "exact"',
+        'integrator = ["exact"]',
+        "integrator",
+        "['exact']",
+    ),
+    _case(
+        "type-kind-array", 'kind = "circle"', 'kind = ["circle"]', "reference.kind", "['circle']"
+    ),
+    _case("type-kind-table", 'kind = "circle"', "kind = {a = 1}", "reference.kind", "{'a': 1}"),
+    _case("type-seed-float", "seed = 0", "seed = 1.5", "seed", "1.5"),
+    _case(
+        "type-gains-bool",
+        "gains = [2.0, 10.0, 4.0]",
+        "gains = [2.0, true, 4.0]",
+        "controllers.backstepping.gains[1]",
+        "True",
+    ),
+    Invalid(
+        "type-noise-not-table",
+        (
+            ("[noise]\npose_std = [0.01, 0.01, 0.01]\n", ""),
+            ('name = "case"\n', _top("noise = 0.01\n")),
+        ),
+        "noise",
+        "0.01",
+    ),
+    _case("nan-dt", "dt = 0.01", "dt = nan", "dt", "nan"),
+    _case("inf-duration", "duration = 2.0", "duration = inf", "duration", "inf"),
+    _case(
+        "nan-pose",
+        "initial_pose = [0.0, -0.7, 1.5707963267948966]",
+        "initial_pose = [0.0, nan, 1.0]",
+        "initial_pose[1]",
+        "nan",
+    ),
+    _case("inf-radius", "radius = 1.0", "radius = -inf", "reference.radius", "-inf"),
+    _case("inf-v_max", "v_max = 2.0", "v_max = inf", "limits.v_max", "inf"),
+    _case(
+        "nan-gain",
+        "gains = [2.0, 10.0, 4.0]",
+        "gains = [2.0, nan, 4.0]",
+        "controllers.backstepping.gains[1]",
+        "nan",
+    ),
+    _case("zero-dt", "dt = 0.01", "dt = 0.0", "dt", "0.0"),
+    _case("negative-dt", "dt = 0.01", "dt = -0.01", "dt", "-0.01"),
+    _case("zero-duration", "duration = 2.0", "duration = 0", "duration", "0.0"),
+    _case("negative-duration", "duration = 2.0", "duration = -2.0", "duration", "-2.0"),
+    _case("dt-above-duration", "dt = 0.01", "dt = 3.0", "dt", "3.0"),
+    _case("duration-not-whole-steps", "duration = 2.0", "duration = 2.005", "duration", "2.005"),
+    _case("too-many-steps", "duration = 2.0", "duration = 1e7", "duration", "10000000.0"),
+    _case("too-many-steps-tiny-dt", "dt = 0.01", "dt = 1e-300", "duration", "2.0"),
+    _case(
+        "pose-length-2",
+        "initial_pose = [0.0, -0.7, 1.5707963267948966]",
+        "initial_pose = [0.0, -0.7]",
+        "initial_pose",
+        "[0.0, -0.7]",
+    ),
+    _case(
+        "pose-length-4",
+        "initial_pose = [0.0, -0.7, 1.5707963267948966]",
+        "initial_pose = [0.0, -0.7, 1.0, 2.0]",
+        "initial_pose",
+        "[0.0, -0.7, 1.0, 2.0]",
+    ),
+    _case(
+        "noise-length",
+        "pose_std = [0.01, 0.01, 0.01]",
+        "pose_std = [0.01, 0.01]",
+        "noise.pose_std",
+        "[0.01, 0.01]",
+    ),
+    _case(
+        "velocity-length",
+        "velocity = [0.1, 0.3]",
+        "velocity = [0.1]",
+        "disturbance[0].velocity",
+        "[0.1]",
+    ),
+    _case(
+        "gains-length",
+        "gains = [2.0, 10.0, 4.0]",
+        "gains = [2.0, 10.0]",
+        "controllers.backstepping.gains",
+        "[2.0, 10.0]",
+    ),
+    _case("unknown-kind", 'kind = "circle"', 'kind = "spiral"', "reference.kind", "'spiral'"),
+    _case(
+        "unknown-integrator",
+        'integrator = "exact"',
+        'integrator = "midpoint"',
+        "integrator",
+        "'midpoint'",
+    ),
+    _case("unknown-key-top", 'name = "case"\n', _top("colour = 'red'\n"), "colour", "'red'"),
+    _case(
+        "unknown-key-reference",
+        "radius = 1.0",
+        "radius = 1.0\nwidth = 3.0",
+        "reference.width",
+        "3.0",
+    ),
+    _case("key-of-other-kind", "radius = 1.0", "radius = 1.0\nsize = 2.0", "reference.size", "2.0"),
+    _case("unknown-key-noise", "[noise]\n", "[noise]\nbias = 0.5\n", "noise.bias", "0.5"),
+    _case(
+        "unknown-key-backstepping",
+        "[controllers.backstepping]\n",
+        "[controllers.backstepping]\nk4 = 1.0\n",
+        "controllers.backstepping.k4",
+        "1.0",
+    ),
+    _case("unknown-key-limits", "[limits]\n", "[limits]\na_max = 1.0\n", "limits.a_max", "1.0"),
+    _case(
+        "unknown-key-disturbance",
+        "start = 0.5",
+        "start = 0.5\nkind = 'step'",
+        "disturbance[0].kind",
+        "'step'",
+    ),
+    _case(
+        "unknown-controller",
+        "[controllers.backstepping]",
+        "[controllers.lqr]",
+        "controllers.lqr",
+        None,
+    ),
+    _case(
+        "negative-noise",
+        "pose_std = [0.01, 0.01, 0.01]",
+        "pose_std = [0.01, -0.01, 0.01]",
+        "noise.pose_std",
+        "-0.01",
+    ),
+    _case("reversed-window", "stop = 1.0", "stop = 0.4", "disturbance[0].stop", "0.4"),
+    _case("empty-window", "stop = 1.0", "stop = 0.5", "disturbance[0].stop", "0.5"),
+    _case("negative-window-start", "start = 0.5", "start = -0.5", "disturbance[0].start", "-0.5"),
+    _case(
+        "window-after-run",
+        "start = 0.5\nstop = 1.0",
+        "start = 2.0\nstop = 3.0",
+        "disturbance[0].start",
+        "2.0",
+    ),
+    _case("disturbance-not-array", "[[disturbance]]", "[disturbance]", "disturbance", None),
+    _case(
+        "zero-gain",
+        "gains = [2.0, 10.0, 4.0]",
+        "gains = [0.0, 10.0, 4.0]",
+        "controllers.backstepping.gains",
+        "0.0",
+    ),
+    _case(
+        "negative-gain",
+        "gains = [2.0, 10.0, 4.0]",
+        "gains = [2.0, 10.0, -4.0]",
+        "controllers.backstepping.gains",
+        "-4.0",
+    ),
+    _case("zero-v_max", "v_max = 2.0", "v_max = 0.0", "limits.v_max", "0.0"),
+    _case("zero-radius", "radius = 1.0", "radius = 0.0", "reference.radius", "0.0"),
+    _case("negative-period", "period = 20.0", "period = -20.0", "reference.period", "-20.0"),
+    _case("negative-seed", "seed = 0", "seed = -1", "seed", "-1"),
+    _case(
+        "zero-divergence-bound",
+        "seed = 0",
+        "seed = 0\ndivergence_bound = 0.0",
+        "divergence_bound",
+        "0.0",
+    ),
+    _case("empty-name", 'name = "case"', 'name = "  "', "name", "'  '"),
+    _case("name-with-slash", 'name = "case"', 'name = "../escape"', "name", "'../escape'"),
+    _case("name-dotdot", 'name = "case"', 'name = ".."', "name", "'..'"),
+)
+
+
+def invalid_params():
+    """``pytest.param`` per invalid case, with its id."""
+    return [pytest.param(c, id=c.id) for c in INVALID]
+
+
+def assert_names(message: str, case: Invalid, filename: str) -> None:
+    """The message is one line naming the file, the key and (if any) the value."""
+    assert "\n" not in message.rstrip("\n"), message
+    assert filename in message, message
+    assert case.key in message, message
+    if case.value is not None:
+        assert case.value in message, message
+
+
+# --- random mutations of a valid scenario (property tests, issue 7) -----------------------------
+
+#: Numbers a careless or hostile file may hold: signs, zeros, NaN/inf, extremes, subnormals.
+_NUMBERS = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.integers(min_value=-(2**63), max_value=2**63 - 1),  # TOML integers are 64-bit
+    st.sampled_from([0, 0.0, -0.0, -1, -1e-9, 1e-300, 5e-324, 1e300, 1.7976931348623157e308]),
+)
+_SCALARS = st.one_of(_NUMBERS, st.booleans(), st.text(max_size=6), st.dates())
+#: Any TOML value (nested arrays and tables of the scalars above).
+TOML_VALUES = st.recursive(
+    _SCALARS,
+    lambda inner: (
+        st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=5), inner, max_size=3)
+    ),
+    max_leaves=5,
+)
+
+
+def _paths(node, prefix=()):
+    """Every path (tuple of keys/indices) into a parsed TOML document."""
+    items = node.items() if isinstance(node, dict) else enumerate(node)
+    for key, child in items:
+        yield (*prefix, key)
+        if isinstance(child, dict | list):
+            yield from _paths(child, (*prefix, key))
+
+
+def _parent(doc, path):
+    node = doc
+    for key in path[:-1]:
+        node = node[key]
+    return node
+
+
+@st.composite
+def mutated_scenarios(draw, base: dict, values=TOML_VALUES, max_mutations: int = 3):
+    """A deep copy of ``base`` with 1..max_mutations random mutations.
+
+    Mutations: set any key or element to a random value, or any number to a random finite
+    float (often still valid, but extreme: 1e-200, 1e300); delete a key or element (wrong
+    lengths, missing keys); add a random key to any table or element to any array; set the
+    reference kind or the integrator to a random string or to another valid name.
+    """
+    doc = copy.deepcopy(base)
+    for _ in range(draw(st.integers(1, max_mutations))):
+        paths = list(_paths(doc))
+        op = draw(st.sampled_from(["set", "number", "delete", "add", "kind", "integrator"]))
+        numbers = [p for p in paths if isinstance(_parent(doc, p)[p[-1]], float)]
+        if op == "number" and numbers:
+            path = draw(st.sampled_from(numbers))
+            _parent(doc, path)[path[-1]] = draw(st.floats(allow_nan=False, allow_infinity=False))
+        elif op in ("set", "delete") and paths:
+            path = draw(st.sampled_from(paths))
+            parent = _parent(doc, path)
+            if op == "set":
+                parent[path[-1]] = draw(values)
+            else:
+                del parent[path[-1]]
+        elif op == "add":
+            containers = [p for p in paths if isinstance(_parent(doc, p)[p[-1]], dict | list)]
+            target = doc
+            if containers and draw(st.booleans()):
+                p = draw(st.sampled_from(containers))
+                target = _parent(doc, p)[p[-1]]
+            if isinstance(target, dict):
+                target[draw(st.text(max_size=8))] = draw(values)
+            else:
+                target.append(draw(values))
+        elif op == "kind" and isinstance(doc.get("reference"), dict):
+            doc["reference"]["kind"] = draw(st.text(max_size=10) | st.sampled_from(sorted(KINDS)))
+        elif op == "integrator":
+            doc["integrator"] = draw(st.text(max_size=8) | st.sampled_from(sorted(INTEGRATORS)))
+    return doc
+
+
+# --- a small TOML writer (the test data must be files; the standard library only reads TOML) -----
+
+
+def _toml_string(s: str) -> str:
+    # json escapes quotes, backslash and C0 controls as TOML does; DEL must be escaped too
+    return json.dumps(s, ensure_ascii=False).replace("\x7f", "\\u007f")
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        return repr(v)  # 'nan', 'inf', '-inf', '1e+300' are TOML floats
+    if isinstance(v, str):
+        return _toml_string(v)
+    if isinstance(v, datetime.date):
+        return v.isoformat()
+    if isinstance(v, list):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{_toml_string(k)} = {_toml_value(x)}" for k, x in v.items()) + "}"
+    raise TypeError(f"not a TOML value: {v!r}")
+
+
+def to_toml(doc: dict) -> str:
+    """TOML text of a document, every table written inline (``key = {...}``)."""
+    return "".join(f"{_toml_string(k)} = {_toml_value(v)}\n" for k, v in doc.items())
