@@ -73,7 +73,7 @@ def _assumptions() -> list[str]:
         ("identifier", f"tanh, {iapid.hidden} hidden, inputs (v, w, cos θ, sin θ), targets "
          "(q̂_k − q̂_(k−1))/dt", "E6: a static (v, w) -> pose map cannot identify the robot"),
         ("weight DEKF", f"P0 = {iapid.p0} I, Q = {iapid.q} I, R = {iapid.r} I3", "paper eq. 63"),
-        ("backstepping gains", str(bsc.gains), "not given; critically damped, notes §4.1"),
+        ("backstepping gains", str(bsc.gains), "not given; of the order of published gains (notes §4.1), damping 0.63"),
         ("DA-NN", f"backstepping {dann.gains} + NN compensator ({dann.hidden} hidden) trained "
          "by an EKF with the paper's P0, Q, R", "design not given; notes §4.2"),
     ]  # fmt: skip

@@ -322,13 +322,6 @@ def test_run_longer_than_the_default_chunk(monkeypatch):
         pytest.param({"initial_pose": (0.0, 4.5e191, 0.0)}, id="initial-y-4.5e191"),
     ],
 )
-@pytest.mark.xfail(
-    strict=True,
-    raises=RuntimeWarning,
-    reason="BUG: sim.simulate emits numpy overflow RuntimeWarnings for extreme but valid "
-    "scenarios (noise = standard_normal * std; _accumulate_initial squares np.float64 "
-    "scalars); the run should just report its divergence (found by the property tests)",
-)
 def test_extreme_valid_scenarios_emit_no_warning(changes):
     r = sim.simulate(_scenario(duration=0.5, **changes), "backstepping")
     assert r.diverged

@@ -67,6 +67,10 @@ def _format_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+#: Longest run whose trajectories (CSV, figure) ``wmr run`` keeps; longer ones: summary only.
+MAX_TRAJECTORY_STEPS = 1_000_000
+
+
 def cmd_run(args) -> int:
     from wmr import scenario as scn
     from wmr import sim
@@ -83,18 +87,30 @@ def cmd_run(args) -> int:
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {str(out)!r}: exists and is not a directory")
 
-    runs = [sim.simulate(sc, name, seed) for name in names]
+    keep = sc.n_steps <= MAX_TRAJECTORY_STEPS
+    runs = [sim.simulate(sc, name, seed, keep_trajectory=keep) for name in names]
     summary = {"scenario": sc.name, "seed": seed, "runs": [r.summary() for r in runs]}
     print(f"scenario {sc.name} (seed {seed}, {sc.n_steps} steps of {sc.dt} s)")
     print(_format_table(summary["runs"]))
     for r in runs:
         if r.diverged:
             print(f"note: {r.controller} diverged at t = {r.diverged_at:.2f} s: {r.cause}")
+    fig = None
+    if keep:  # render before writing anything, so a plotting failure leaves no partial output
+        import matplotlib.pyplot as plt
+
+        # a literal "$" in the name would start matplotlib mathtext (and "$\\frac$" fails to parse)
+        title = f"{sc.name} (seed {seed})".replace("$", r"\$")
+        fig = tracking_figure(runs, title=title)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:  # e.g. a parent of --out is a file, or no permission: bad option
         raise UsageError(f"--out {str(out)!r}: cannot create the folder: {err.strerror}") from None
     write_json(out / "summary.json", summary)
+    if not keep:
+        print(f"note: {sc.n_steps} steps > {MAX_TRAJECTORY_STEPS}: trajectories and figure not "
+              f"kept; wrote {out}/summary.json")  # fmt: skip
+        return 0
     for r in runs:
         header = ["t", "x", "y", "theta", "x_r", "y_r", "theta_r", "v_r", "w_r",
                   "x_hat", "y_hat", "theta_hat", "v", "w", *r.state_names]  # fmt: skip
@@ -109,11 +125,6 @@ def cmd_run(args) -> int:
             rows.append([float(r.t[k]), *map(float, r.q[k]), *map(float, r.ref[k]),
                          *[float(x) if x != "" else x for x in per_step]])  # fmt: skip
         write_csv(out / f"trajectory-{r.controller}.csv", header, rows)
-    import matplotlib.pyplot as plt
-
-    # a literal "$" in the name would start matplotlib mathtext (and "$\\frac$" fails to parse)
-    title = f"{sc.name} (seed {seed})".replace("$", r"\$")
-    fig = tracking_figure(runs, title=title)
     save_figure(fig, out / "tracking.png")
     plt.close(fig)
     print(f"wrote {out}/summary.json, trajectory-*.csv, tracking.png")

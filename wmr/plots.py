@@ -59,7 +59,10 @@ def tracking_figure(runs: Sequence, title: str = ""):
         for i in range(3):
             ax_err[i].plot(r.t, e[:, i], color=color, lw=1.0)
     ax_path.plot(*runs[0].q[0, :2], "ko", ms=5, label="start")
-    ax_path.set(xlabel="x [m]", ylabel="y [m]", title=title or runs[0].scenario, aspect="equal")
+    ax_path.set(xlabel="x [m]", ylabel="y [m]", title=title or runs[0].scenario)
+    span = max(np.ptp(r.q[:, :2]) if np.all(np.isfinite(r.q)) else np.inf for r in runs)
+    if span < 1e6:  # an equal aspect is singular for a run that diverged astronomically far
+        ax_path.set_aspect("equal")
     ax_path.legend(loc="best", fontsize=8)
     for ax, name in zip(ax_err, ("$x_e$ [m]", "$y_e$ [m]", r"$\theta_e$ [rad]"), strict=True):
         ax.set_ylabel(name)

@@ -253,8 +253,9 @@ def simulate(
     integ = integrator_code(scenario.integrator)
     est = scenario.estimator
     use_ekf = est.pose_source == "filtered" or (est.pose_source == "paper" and ctrl.uses_estimator)
-    Qp = np.diag(np.square(est.process_std))
-    Rp = np.diag(np.square(np.maximum(std, est.min_measurement_std)))
+    with np.errstate(over="ignore"):  # an absurd std gives an infinite covariance, not a warning
+        Qp = np.diag(np.square(est.process_std))
+        Rp = np.diag(np.square(np.maximum(std, est.min_measurement_std)))
     Pq = Rp.copy()
     acc = np.zeros(_N_ACC)
     status = np.array([-1, 0], dtype=np.int64)
@@ -270,14 +271,16 @@ def simulate(
     advance = kernel(controller, ctrl.law)
     sampler = ReferenceSampler(scenario.reference.kind, scenario.reference.params, dt)
     ref_prev = sampler.rows(0, 1)
-    _accumulate_initial(q, ref_prev[0], acc)
+    with np.errstate(over="ignore", invalid="ignore"):  # extreme scenarios diverge, not warn
+        _accumulate_initial(q, ref_prev[0], acc)
     if keep:
         q_log[0] = q
         ref_log[0] = ref_prev[0]
     for k0 in range(0, n, CHUNK):
         k1 = min(k0 + CHUNK, n)
         ref = np.vstack((ref_prev[-1:], sampler.rows(k0 + 1, k1 + 1)))
-        noise = rng_noise.standard_normal((k1 - k0, 3)) * std
+        with np.errstate(over="ignore", invalid="ignore"):
+            noise = rng_noise.standard_normal((k1 - k0, 3)) * std
         advance(
             p, s, W, P, k0, k1, dt, integ, q, q_hat, ref, noise, use_ekf, Pq, Qp, Rp,
             dist[0], dist[1], dist_v, dist_w,
