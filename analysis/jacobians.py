@@ -12,8 +12,10 @@ Checks (``B`` is always the CasADi AD value, ``A`` the library's closed form):
 - ``F = dq+/dq``, ``G = dq+/du`` of the ZOH steps (``"exact"``, ``"euler"``, ``"rk4"``):
   :func:`wmr.kinematics.step_jacobians`;
 - the network input Jacobian ``dz/dx = W diag(1 - h^2) V`` (errata E7):
-  :func:`wmr.nn.input_jacobian`, and the printed eqs. 22-24: :func:`wmr.nn.input_jacobian_printed`;
-- the weight Jacobian ``H = dz/dtheta`` of the weight EKF (errata E8): :func:`wmr.nn.weight_jacobian`;
+  :func:`wmr.nn.input_jacobian`, and the printed eqs. 22-24:
+  :func:`wmr.nn.input_jacobian_printed`;
+- the weight Jacobian ``H = dz/dtheta`` of the weight EKF (errata E8):
+  :func:`wmr.nn.weight_jacobian`;
 - the error frame (errata E3): ``det T_e`` symbolically (``cos 2theta`` for the printed matrix),
   and the residual of Kanayama's error dynamics against the chain-rule ``de/dt`` of
   ``e = T_e (q_r - q)`` for both matrices (:func:`wmr.symbolic.error_dynamics_residual_function`).
@@ -192,8 +194,9 @@ def _edge_unicycle_points() -> UnicyclePoints:
 def unicycle_points(rng: np.random.Generator, n: int, edges: bool = True) -> UnicyclePoints:
     """``n`` random points (x, y in [-5, 5] m, theta in [-pi, pi], v in [-2, 2] m/s,
     w in [-5, 5] rad/s, dt drawn from :data:`DTS`), plus the edge points if ``edges``."""
-    q = np.column_stack((rng.uniform(-5, 5, n), rng.uniform(-5, 5, n),
-                         rng.uniform(-np.pi, np.pi, n)))  # fmt: skip
+    q = np.column_stack(
+        (rng.uniform(-5, 5, n), rng.uniform(-5, 5, n), rng.uniform(-np.pi, np.pi, n))
+    )
     u = np.column_stack((rng.uniform(-2, 2, n), rng.uniform(-5, 5, n)))
     dt = rng.choice(np.array(DTS), n)
     pts = UnicyclePoints(q, u, dt)
@@ -247,8 +250,9 @@ def _network_inputs(rng: np.random.Generator, n: int, n_in: int) -> np.ndarray:
     return np.column_stack(cols)[:, :n_in]
 
 
-def network_points(rng: np.random.Generator, n_in: int, n_h: int, n: int, n_out: int = N_OUT,
-                   edges: bool = True) -> NetworkPoints:  # fmt: skip
+def network_points(
+    rng: np.random.Generator, n_in: int, n_h: int, n: int, n_out: int = N_OUT, edges: bool = True
+) -> NetworkPoints:
     """``n`` random networks and inputs of one size, plus edge points if ``edges``.
 
     Weights are standard normal times a scale drawn log-uniformly in [0.1, 3] per point (from
@@ -275,9 +279,12 @@ def network_errors(points: NetworkPoints) -> dict[str, np.ndarray]:
     """Relative errors against AD of the corrected input Jacobian (``"input"``), the printed
     eqs. 22-24 (``"input_printed"``) and the weight Jacobian (``"weights"``), each (N,)."""
     n_in, n_h, n_out = points.n_in, points.n_h, points.n_out
-    (J_ad,) = _ad_batch(sym.network_input_jacobian_function(n_in, n_h, n_out), points.theta, points.x)
-    (H_ad,) = _ad_batch(sym.network_weight_jacobian_function(n_in, n_h, n_out), points.theta,
-                        points.x)  # fmt: skip
+    (J_ad,) = _ad_batch(
+        sym.network_input_jacobian_function(n_in, n_h, n_out), points.theta, points.x
+    )
+    (H_ad,) = _ad_batch(
+        sym.network_weight_jacobian_function(n_in, n_h, n_out), points.theta, points.x
+    )
     J = np.empty_like(J_ad)
     Jp = np.empty_like(J_ad)
     H = np.empty_like(H_ad)
@@ -287,8 +294,11 @@ def network_errors(points: NetworkPoints) -> dict[str, np.ndarray]:
         J[i] = nn.input_jacobian(th, x, n_h, n_out, h)
         Jp[i] = nn.input_jacobian_printed(th, x, n_h, n_out)
         nn.weight_jacobian(th, x, n_h, n_out, h, H[i])
-    return {"input": rel_error(J, J_ad), "input_printed": rel_error(Jp, J_ad),
-            "weights": rel_error(H, H_ad)}  # fmt: skip
+    return {
+        "input": rel_error(J, J_ad),
+        "input_printed": rel_error(Jp, J_ad),
+        "weights": rel_error(H, H_ad),
+    }
 
 
 # ---------------------------------------------------------------------------------------------
@@ -300,9 +310,11 @@ def error_dynamics_points(rng: np.random.Generator, n: int, edges: bool = True):
     """``(q (N, 3), u (N, 2), ref (N, 5))``: robot and reference poses in [-5, 5]^2 x [-pi, pi],
     inputs ``v, v_r`` in [-2, 2], ``w, w_r`` in [-5, 5]; edges: ``theta`` in {+-pi/4 (where the
     printed matrix is singular), +-pi}, zero error, zero inputs."""
+
     def pose(m):
-        return np.column_stack((rng.uniform(-5, 5, m), rng.uniform(-5, 5, m),
-                                rng.uniform(-np.pi, np.pi, m)))  # fmt: skip
+        return np.column_stack(
+            (rng.uniform(-5, 5, m), rng.uniform(-5, 5, m), rng.uniform(-np.pi, np.pi, m))
+        )
 
     def inputs(m):
         return np.column_stack((rng.uniform(-2, 2, m), rng.uniform(-5, 5, m)))
@@ -367,11 +379,6 @@ def rotation_det_check(n_grid: int = 10001) -> dict:
 # ---------------------------------------------------------------------------------------------
 
 
-def _stats(x: np.ndarray) -> dict:
-    x = np.asarray(x, dtype=float)
-    return {"n": int(x.size), "max": float(np.max(x)), "median": float(np.median(x))}
-
-
 def point_study(points: int = 1000, seed: int = SEED) -> tuple[dict, dict]:
     """Closed form vs AD (and printed vs AD) at ``points`` seeded random points per check.
 
@@ -384,8 +391,10 @@ def point_study(points: int = 1000, seed: int = SEED) -> tuple[dict, dict]:
     net_by_size = {}
     for n_in, n_h in NETWORK_SIZES:
         net_by_size[f"{n_in}x{n_h}"] = network_errors(network_points(rng_n, n_in, n_h, points))
-    net = {k: np.concatenate([v[k] for v in net_by_size.values()])
-           for k in ("input", "input_printed", "weights")}  # fmt: skip
+    net = {
+        k: np.concatenate([v[k] for v in net_by_size.values()])
+        for k in ("input", "input_printed", "weights")
+    }
     q, u, ref = error_dynamics_points(rng_e, points)
     res = error_dynamics_residuals(q, u, ref)
     p_in = net["input_printed"]
@@ -400,30 +409,46 @@ def point_study(points: int = 1000, seed: int = SEED) -> tuple[dict, dict]:
             "printed_fraction_above_0.1": float(np.mean(p_in > PRINTED_MIN_ERROR)),
             "n": int(p_in.size),
             "sizes": [f"{a}x{b}" for a, b in NETWORK_SIZES],
-            "by_size": {k: {"corrected_max_rel_error": float(v["input"].max()),
-                            "printed_median_rel_error": float(np.median(v["input_printed"]))}
-                        for k, v in net_by_size.items()},  # fmt: skip
+            "by_size": {
+                k: {
+                    "corrected_max_rel_error": float(v["input"].max()),
+                    "printed_median_rel_error": float(np.median(v["input_printed"])),
+                }
+                for k, v in net_by_size.items()
+            },
         },
-        "network_weights": {"max_rel_error": float(net["weights"].max()),
-                            "n": int(net["weights"].size)},  # fmt: skip
+        "network_weights": {
+            "max_rel_error": float(net["weights"].max()),
+            "n": int(net["weights"].size),
+        },
         "unicycle_step": {
-            name: {"max_rel_error": float(max(e["F"].max(), e["G"].max())),
-                   "F_max_rel_error": float(e["F"].max()), "G_max_rel_error": float(e["G"].max()),
-                   "n": len(pts)}
+            name: {
+                "max_rel_error": float(max(e["F"].max(), e["G"].max())),
+                "F_max_rel_error": float(e["F"].max()),
+                "G_max_rel_error": float(e["G"].max()),
+                "n": len(pts),
+            }
             for name, e in uni.items()
-        },  # fmt: skip
+        },
         "rotation": {
             **rotation_det_check(),
-            "error_dynamics_max_residual": {"corrected": float(res["corrected"].max()),
-                                            "printed": float(res["printed"].max())},
-            "error_dynamics_median_residual": {"corrected": float(np.median(res["corrected"])),
-                                               "printed": float(np.median(res["printed"]))},
+            "error_dynamics_max_residual": {
+                "corrected": float(res["corrected"].max()),
+                "printed": float(res["printed"].max()),
+            },
+            "error_dynamics_median_residual": {
+                "corrected": float(np.median(res["corrected"])),
+                "printed": float(np.median(res["printed"])),
+            },
             "error_dynamics_points": int(len(q)),
-        },  # fmt: skip
+        },
     }
     raw = {f"step {name} {m}": e[m] for name, e in uni.items() for m in ("F", "G")}
-    raw |= {"network dz/dx": net["input"], "network H": net["weights"],
-            "network dz/dx printed": p_in}  # fmt: skip
+    raw |= {
+        "network dz/dx": net["input"],
+        "network H": net["weights"],
+        "network dz/dx printed": p_in,
+    }
     raw |= {"error dynamics corrected": res["corrected"], "error dynamics printed": res["printed"]}
     return summary, raw
 
@@ -442,8 +467,11 @@ def along_run(run, max_points: int | None = None) -> dict:
     ``(q_k, u_k, ref_k)``.  ``max_points`` subsamples the steps evenly.
     """
     n = len(run.u)
-    idx = np.arange(n) if max_points is None or n <= max_points else \
-        np.linspace(0, n - 1, max_points).round().astype(int)  # fmt: skip
+    idx = (
+        np.arange(n)
+        if max_points is None or n <= max_points
+        else np.linspace(0, n - 1, max_points).round().astype(int)
+    )
     q, u, q_hat, ref = run.q[idx], run.u[idx], run.q_hat[idx], run.ref[idx]
     dt = np.full(len(idx), run.dt)
     uni = unicycle_errors(UnicyclePoints(q, u, dt))
@@ -454,15 +482,20 @@ def along_run(run, max_points: int | None = None) -> dict:
     res = error_dynamics_residuals(q, u, ref)
     return {
         "steps": int(len(idx)),
-        "unicycle_step": {k: {"max_rel_error": float(max(e["F"].max(), e["G"].max()))}
-                          for k, e in uni.items()},  # fmt: skip
-        "network_input": {"corrected_max_rel_error": float(net["input"].max()),
-                          "printed_median_rel_error": float(np.median(net["input_printed"]))},
+        "unicycle_step": {
+            k: {"max_rel_error": float(max(e["F"].max(), e["G"].max()))} for k, e in uni.items()
+        },
+        "network_input": {
+            "corrected_max_rel_error": float(net["input"].max()),
+            "printed_median_rel_error": float(np.median(net["input_printed"])),
+        },
         "network_weights": {"max_rel_error": float(net["weights"].max())},
-        "error_dynamics_max_residual": {"corrected": float(res["corrected"].max()),
-                                        "printed": float(res["printed"].max())},
+        "error_dynamics_max_residual": {
+            "corrected": float(res["corrected"].max()),
+            "printed": float(res["printed"].max()),
+        },
         "error_dynamics_median_residual": {"printed": float(np.median(res["printed"]))},
-    }  # fmt: skip
+    }
 
 
 def _hidden_units(n_weights: int, n_in: int = 4, n_out: int = N_OUT) -> int:
@@ -538,15 +571,16 @@ def learned_vs_true(run, scenario, settings=None) -> dict[str, np.ndarray]:
         "rel_error_v": rel_error(J_l[:, :, :1], J_t[:, :, :1]),
         "rel_error_w": rel_error(J_l[:, :, 1:], J_t[:, :, 1:]),
         "norm_ratio": np.linalg.norm(J_l, axis=(1, 2)) / np.linalg.norm(J_t, axis=(1, 2)),
-        "matrix_cosine": np.sum(J_l * J_t, axis=(1, 2)) / np.maximum(
-            np.linalg.norm(J_l, axis=(1, 2)) * np.linalg.norm(J_t, axis=(1, 2)), _TINY),
+        "matrix_cosine": np.sum(J_l * J_t, axis=(1, 2))
+        / np.maximum(np.linalg.norm(J_l, axis=(1, 2)) * np.linalg.norm(J_t, axis=(1, 2)), _TINY),
         "cosine": cosine,
         **signs,
     }
 
 
 def summarise_learned(series: list[dict[str, np.ndarray]]) -> dict:
-    """Mean ± std over seeds of per-run means (whole run and last half) of :func:`learned_vs_true`."""
+    """Mean ± std over seeds of the per-run means (whole run, last half) of
+    :func:`learned_vs_true`; ``rel_error_final`` lists the last step's error per seed."""
 
     def over_seeds(key, part):
         vals = []
@@ -558,8 +592,16 @@ def summarise_learned(series: list[dict[str, np.ndarray]]) -> dict:
         return {"mean": float(v.mean()), "std": float(v.std(ddof=1)) if v.size > 1 else 0.0}
 
     out = {"seeds": len(series)}
-    for key in ("rel_error", "rel_error_v", "rel_error_w", "norm_ratio", "matrix_cosine",
-                "cosine", "sign_v", "sign_w"):
+    for key in (
+        "rel_error",
+        "rel_error_v",
+        "rel_error_w",
+        "norm_ratio",
+        "matrix_cosine",
+        "cosine",
+        "sign_v",
+        "sign_w",
+    ):
         out[key] = {"last_half": over_seeds(key, "last_half"), "whole_run": over_seeds(key, "all")}
     out["rel_error_final"] = [float(s["rel_error"][-1]) for s in series]
     return out
@@ -613,10 +655,20 @@ def write_error_figure(raw: dict, path: Path) -> None:
     colors = ["tab:red" if p else "tab:blue" for p in printed]
     ax1.barh(y, mx, color=colors, alpha=0.8, label="max")
     ax1.plot(md, y, "k|", ms=14, mew=2, label="median")
-    ax1.axvline(CLOSED_FORM_TOL, color="tab:green", ls="--", lw=1,
-                label=f"closed-form tolerance {CLOSED_FORM_TOL:g}")  # fmt: skip
-    ax1.axvline(PRINTED_MIN_ERROR, color="tab:red", ls=":", lw=1,
-                label=f"printed forms fail above {PRINTED_MIN_ERROR:g}")  # fmt: skip
+    ax1.axvline(
+        CLOSED_FORM_TOL,
+        color="tab:green",
+        ls="--",
+        lw=1,
+        label=f"closed-form tolerance {CLOSED_FORM_TOL:g}",
+    )
+    ax1.axvline(
+        PRINTED_MIN_ERROR,
+        color="tab:red",
+        ls=":",
+        lw=1,
+        label=f"printed forms fail above {PRINTED_MIN_ERROR:g}",
+    )
     ax1.set_xscale("log")
     ax1.set_yticks(y, names, fontsize=8)
     ax1.invert_yaxis()
@@ -640,8 +692,12 @@ def write_error_figure(raw: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def plot_learned(series: dict[str, list[dict]], axes=None, window: float = 1.0,
-                 reference: dict[str, list[dict]] | None = None):  # fmt: skip
+def plot_learned(
+    series: dict[str, list[dict]],
+    axes=None,
+    window: float = 1.0,
+    reference: dict[str, list[dict]] | None = None,
+):
     """Relative error of the learned Jacobian (left) and the rolling mean cosine between the
     learned and true SGD directions (right) per scenario; one thin line per seed, median bold.
 
@@ -651,8 +707,14 @@ def plot_learned(series: dict[str, list[dict]], axes=None, window: float = 1.0,
 
     scen = list(series)
     if axes is None:
-        fig, axes = plt.subplots(len(scen), 2, figsize=(12, 2.8 * len(scen)), squeeze=False,
-                                 sharex=True, layout="constrained")  # fmt: skip
+        fig, axes = plt.subplots(
+            len(scen),
+            2,
+            figsize=(12, 2.8 * len(scen)),
+            squeeze=False,
+            sharex=True,
+            layout="constrained",
+        )
     else:
         fig = np.atleast_1d(axes).ravel()[0].figure
         axes = np.atleast_2d(axes)
@@ -667,16 +729,33 @@ def plot_learned(series: dict[str, list[dict]], axes=None, window: float = 1.0,
             row[0].plot(t, r, color="tab:blue", lw=0.5, alpha=0.4)
             row[1].plot(t, c, color="tab:purple", lw=0.5, alpha=0.4)
         row[0].plot(t, np.median(rel, axis=0), color="tab:blue", lw=1.5, label="median over seeds")
-        row[1].plot(t, np.median(cos, axis=0), color="tab:purple", lw=1.5,
-                    label=f"median, {window:g} s rolling mean")  # fmt: skip
+        row[1].plot(
+            t,
+            np.median(cos, axis=0),
+            color="tab:purple",
+            lw=1.5,
+            label=f"median, {window:g} s rolling mean",
+        )
         if reference is not None and name in reference:
             rs = reference[name]
             rel0 = np.median([s["rel_error"] for s in rs], axis=0)
             cos0 = np.median([_rolling_mean(s["cosine"], w) for s in rs], axis=0)
-            row[0].plot(rs[0]["t"], rel0, color="tab:orange", ls="--", lw=1.2,
-                        label="median, no measurement noise")  # fmt: skip
-            row[1].plot(rs[0]["t"], cos0, color="tab:orange", ls="--", lw=1.2,
-                        label="median, no measurement noise")  # fmt: skip
+            row[0].plot(
+                rs[0]["t"],
+                rel0,
+                color="tab:orange",
+                ls="--",
+                lw=1.2,
+                label="median, no measurement noise",
+            )
+            row[1].plot(
+                rs[0]["t"],
+                cos0,
+                color="tab:orange",
+                ls="--",
+                lw=1.2,
+                label="median, no measurement noise",
+            )
         row[0].axhline(1.0, color="k", ls="--", lw=0.8, label="J = 0 (knows nothing)")
         row[0].set_yscale("log")
         row[0].set_ylabel(f"{name}\n||J_NN - J|| / ||J||", fontsize=9)
@@ -708,68 +787,141 @@ def write_table(summary: dict, path: Path) -> None:
     for name, e in summary["unicycle_step"].items():
         rows.append((f"ZOH step `{name}`: F, G", e["n"], e["max_rel_error"], "< 1e-10"))
     ni = summary["network_input"]
-    rows.append(("network dz/dx, corrected (E7)", ni["n"], ni["corrected_max_rel_error"], "< 1e-10"))
-    rows.append(("network H = dz/dθ (E8)", summary["network_weights"]["n"],
-                 summary["network_weights"]["max_rel_error"], "< 1e-10"))  # fmt: skip
+    rows.append(
+        ("network dz/dx, corrected (E7)", ni["n"], ni["corrected_max_rel_error"], "< 1e-10")
+    )
+    rows.append(
+        (
+            "network H = dz/dθ (E8)",
+            summary["network_weights"]["n"],
+            summary["network_weights"]["max_rel_error"],
+            "< 1e-10",
+        )
+    )
     rot = summary["rotation"]
-    rows.append(("network dz/dx, printed eqs. 22–24 (median)", ni["n"],
-                 ni["printed_median_rel_error"], "> 0.1 (fails)"))  # fmt: skip
-    rows.append(("network dz/dx, printed eqs. 22–24 (max)", ni["n"], ni["printed_max_rel_error"],
-                 "> 0.1 (fails)"))  # fmt: skip
+    rows.append(
+        (
+            "network dz/dx, printed eqs. 22–24 (median)",
+            ni["n"],
+            ni["printed_median_rel_error"],
+            "> 0.1 (fails)",
+        )
+    )
+    rows.append(
+        (
+            "network dz/dx, printed eqs. 22–24 (max)",
+            ni["n"],
+            ni["printed_max_rel_error"],
+            "> 0.1 (fails)",
+        )
+    )
     n_e = rot["error_dynamics_points"]
-    rows.append(("Kanayama error dynamics, rotation (abs.)", n_e,
-                 rot["error_dynamics_max_residual"]["corrected"], "< 1e-12"))  # fmt: skip
-    rows.append(("Kanayama error dynamics, printed eqs. 4/6 (abs., median)", n_e,
-                 rot["error_dynamics_median_residual"]["printed"], "> 1e-3 (fails)"))  # fmt: skip
-    rows.append(("det T_e(printed) − cos 2θ (abs.)", rot["grid_points"],
-                 rot["max_abs_det_minus_cos_2theta"], f"< {DET_TOL:g}"))  # fmt: skip
-    lines = [f"Closed forms vs CasADi AD at {summary['points']} seeded random points per check "
-             "(plus edge points); relative Frobenius error unless marked abs.", "",
-             "| check | points | error | claim |", "|---|---|---|---|"]  # fmt: skip
+    rows.append(
+        (
+            "Kanayama error dynamics, rotation (abs.)",
+            n_e,
+            rot["error_dynamics_max_residual"]["corrected"],
+            "< 1e-12",
+        )
+    )
+    rows.append(
+        (
+            "Kanayama error dynamics, printed eqs. 4/6 (abs., median)",
+            n_e,
+            rot["error_dynamics_median_residual"]["printed"],
+            "> 1e-3 (fails)",
+        )
+    )
+    rows.append(
+        (
+            "det T_e(printed) − cos 2θ (abs.)",
+            rot["grid_points"],
+            rot["max_abs_det_minus_cos_2theta"],
+            f"< {DET_TOL:g}",
+        )
+    )
+    lines = [
+        f"Closed forms vs CasADi AD at {summary['points']} seeded random points per check "
+        "(plus edge points); relative Frobenius error unless marked abs.",
+        "",
+        "| check | points | error | claim |",
+        "|---|---|---|---|",
+    ]
     lines += [f"| {a} | {n} | {v:.3g} | {c} |" for a, n, v, c in rows]
-    lines += ["", f"`det T_e` printed: `{rot['printed_det']}` = cos 2θ; corrected: "
-              f"`{rot['corrected_det']}`.", ""]  # fmt: skip
+    lines += [
+        "",
+        f"`det T_e` printed: `{rot['printed_det']}` = cos 2θ; corrected: `{rot['corrected_det']}`.",
+        "",
+    ]
     learned = summary.get("learned_jacobian")
     if learned:
-        lines += [f"Learned (IAPID-NN-DEKF) vs true plant Jacobian, mean ± std over "
-                  f"{learned['seeds']} seeds, last half of each run:", "",
-                  "| scenario | rel. error | column v | column w | ‖J_NN‖/‖J‖ | cos(J_NN, J) | "
-                  "cos(g_NN, g) | same sign v | same sign w |",
-                  "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+        lines += [
+            f"Learned (IAPID-NN-DEKF) vs true plant Jacobian, mean ± std over "
+            f"{learned['seeds']} seeds, last half of each run:",
+            "",
+            "| scenario | rel. error | column v | column w | ‖J_NN‖/‖J‖ | cos(J_NN, J) | "
+            "cos(g_NN, g) | same sign v | same sign w |",
+            "|---|---|---|---|---|---|---|---|---|",
+        ]
         variants = [("", learned["scenarios"]), (" (no noise)", learned.get("noise_free", {}))]
         for suffix, entries in variants:
             for sc, d in entries.items():
-                cells = [f"{d[k]['last_half']['mean']:.3f} ± {d[k]['last_half']['std']:.3f}"
-                         for k in ("rel_error", "rel_error_v", "rel_error_w", "norm_ratio",
-                                   "matrix_cosine", "cosine", "sign_v", "sign_w")]  # fmt: skip
+                cells = [
+                    f"{d[k]['last_half']['mean']:.3f} ± {d[k]['last_half']['std']:.3f}"
+                    for k in (
+                        "rel_error",
+                        "rel_error_v",
+                        "rel_error_w",
+                        "norm_ratio",
+                        "matrix_cosine",
+                        "cosine",
+                        "sign_v",
+                        "sign_w",
+                    )
+                ]
                 lines.append(f"| {sc}{suffix} | " + " | ".join(cells) + " |")
-        lines += ["", "Relative error 1 is what J = 0 scores.  (no noise): the same runs without "
-                  "pose-measurement noise, a diagnostic.", ""]  # fmt: skip
+        lines += [
+            "",
+            "Relative error 1 is what J = 0 scores.  (no noise): the same runs without "
+            "pose-measurement noise, a diagnostic.",
+            "",
+        ]
     atomic_write_text(path, "\n".join(lines))
 
 
 def check_claims(summary: dict) -> None:
     """The study's headline claims (STYLE 14); raises ``AssertionError`` naming the one broken."""
     checks = [(f"step {k}", e["max_rel_error"]) for k, e in summary["unicycle_step"].items()]
-    checks += [("network dz/dx", summary["network_input"]["corrected_max_rel_error"]),
-               ("network H", summary["network_weights"]["max_rel_error"])]  # fmt: skip
+    checks += [
+        ("network dz/dx", summary["network_input"]["corrected_max_rel_error"]),
+        ("network H", summary["network_weights"]["max_rel_error"]),
+    ]
     for sc, a in summary.get("along_runs", {}).get("scenarios", {}).items():
         checks += [(f"{sc}: step {k}", e["max_rel_error"]) for k, e in a["unicycle_step"].items()]
-        checks += [(f"{sc}: network dz/dx", a["network_input"]["corrected_max_rel_error"]),
-                   (f"{sc}: network H", a["network_weights"]["max_rel_error"])]  # fmt: skip
+        checks += [
+            (f"{sc}: network dz/dx", a["network_input"]["corrected_max_rel_error"]),
+            (f"{sc}: network H", a["network_weights"]["max_rel_error"]),
+        ]
         r = a["error_dynamics_max_residual"]["corrected"]
-        assert r < IDENTITY_TOL, f"{sc}: corrected error-dynamics residual {r:.3g} >= {IDENTITY_TOL}"
+        assert r < IDENTITY_TOL, (
+            f"{sc}: corrected error-dynamics residual {r:.3g} >= {IDENTITY_TOL}"
+        )
+        p = a["network_input"]["printed_median_rel_error"]
+        assert p > PRINTED_MIN_ERROR, f"{sc}: printed eqs. 22-24 median error {p:.3g} along the run"
     for label, v in checks:
         assert v < CLOSED_FORM_TOL, f"{label}: closed form vs AD {v:.3g} >= {CLOSED_FORM_TOL}"
     ni = summary["network_input"]
     assert ni["printed_median_rel_error"] > PRINTED_MIN_ERROR, (
         f"printed eqs. 22-24 median error {ni['printed_median_rel_error']:.3g} <= "
-        f"{PRINTED_MIN_ERROR}: they should fail the check")  # fmt: skip
+        f"{PRINTED_MIN_ERROR}: they should fail the check"
+    )
     rot = summary["rotation"]
     r_c = rot["error_dynamics_max_residual"]["corrected"]
     r_p = rot["error_dynamics_median_residual"]["printed"]
     assert r_c < IDENTITY_TOL, f"corrected error-dynamics residual {r_c:.3g} >= {IDENTITY_TOL}"
-    assert r_p > PRINTED_MIN_RESIDUAL, f"printed residual (median) {r_p:.3g} <= {PRINTED_MIN_RESIDUAL}"
+    assert r_p > PRINTED_MIN_RESIDUAL, (
+        f"printed residual (median) {r_p:.3g} <= {PRINTED_MIN_RESIDUAL}"
+    )
     d = rot["max_abs_det_minus_cos_2theta"]
     assert d < DET_TOL, f"det T_e(printed) - cos 2theta up to {d:.3g} >= {DET_TOL}"
     assert rot["max_abs_corrected_det_minus_1"] < DET_TOL, "corrected det T_e is not 1"
@@ -778,8 +930,9 @@ def check_claims(summary: dict) -> None:
         assert math.isfinite(v), f"{sc}: learned Jacobian error is not finite"
 
 
-def main(out: str | Path = "paper", points: int = 1000, seeds: int = LEARNED_SEEDS,
-         seed: int = SEED) -> dict:  # fmt: skip
+def main(
+    out: str | Path = "paper", points: int = 1000, seeds: int = LEARNED_SEEDS, seed: int = SEED
+) -> dict:
     """Run the study and write its results, table and figures into ``out``; returns the summary."""
     import matplotlib.pyplot as plt
 
@@ -789,9 +942,10 @@ def main(out: str | Path = "paper", points: int = 1000, seeds: int = LEARNED_SEE
     runs, series, learned = learned_study(scenarios, seeds)
     _, series_quiet, learned_quiet = learned_study(scenarios, seeds, noise=False)
     summary["along_runs"] = {
-        "controller": CONTROLLER, "seed": 0,
+        "controller": CONTROLLER,
+        "seed": 0,
         "scenarios": {n: along_run(rs[0]) for n, rs in runs.items()},
-    }  # fmt: skip
+    }
     summary["learned_jacobian"] = {
         "controller": CONTROLLER,
         "seeds": seeds,
@@ -842,33 +996,48 @@ def _notes(summary: dict) -> list[str]:
     parts = []
     for sc, d in summary["learned_jacobian"]["scenarios"].items():
         h = {k: v["last_half"]["mean"] for k, v in d.items() if isinstance(v, dict)}
-        parts.append(f"{sc} {h['rel_error']:.2f} (norm ratio {h['norm_ratio']:.1f}, matrix cosine "
-                     f"{h['matrix_cosine']:.2f}; SGD direction cosine {h['cosine']:.2f}, same sign "
-                     f"v/w {h['sign_v']:.2f}/{h['sign_w']:.2f})")  # fmt: skip
-    lines.append("Learned vs true plant Jacobian, means over the last half of the runs and over "
-                 "seeds; relative error 1 = the trivial J = 0: " + "; ".join(parts) + ".")  # fmt: skip
+        parts.append(
+            f"{sc} {h['rel_error']:.2f} (norm ratio {h['norm_ratio']:.1f}, matrix cosine "
+            f"{h['matrix_cosine']:.2f}; SGD direction cosine {h['cosine']:.2f}, same sign "
+            f"v/w {h['sign_v']:.2f}/{h['sign_w']:.2f})"
+        )
+    lines.append(
+        "Learned vs true plant Jacobian, means over the last half of the runs and over "
+        "seeds; relative error 1 = the trivial J = 0: " + "; ".join(parts) + "."
+    )
     quiet = summary["learned_jacobian"].get("noise_free")
     if quiet:
-        parts = [f"{sc} {d['rel_error']['last_half']['mean']:.2f} (norm ratio "
-                 f"{d['norm_ratio']['last_half']['mean']:.2f}, column w "
-                 f"{d['rel_error_w']['last_half']['mean']:.2f}, column v "
-                 f"{d['rel_error_v']['last_half']['mean']:.2f})" for sc, d in quiet.items()]
-        lines.append("Without pose-measurement noise (diagnostic): " + "; ".join(parts) + ".  "
-                     "The over-scaled Jacobian comes with the noise; this is consistent with a "
-                     "closed-loop identification bias (the noise in q_hat_k enters both the input "
-                     "u_k, through the controller, and the target (q_hat_{k+1} - q_hat_k)/dt, so "
-                     "the regression of target on input is biased).  Without noise the w column is learned well and the v column poorly (the "
-                     "speed barely varies: little excitation).")  # fmt: skip
+        parts = [
+            f"{sc} {d['rel_error']['last_half']['mean']:.2f} (norm ratio "
+            f"{d['norm_ratio']['last_half']['mean']:.2f}, column w "
+            f"{d['rel_error_w']['last_half']['mean']:.2f}, column v "
+            f"{d['rel_error_v']['last_half']['mean']:.2f})"
+            for sc, d in quiet.items()
+        ]
+        lines.append(
+            "Without pose-measurement noise (diagnostic): " + "; ".join(parts) + ".  "
+            "The over-scaled Jacobian comes with the noise; this is consistent with a "
+            "closed-loop identification bias (the noise in q_hat_k enters both the input "
+            "u_k, through the controller, and the target (q_hat_{k+1} - q_hat_k)/dt, so "
+            "the regression of target on input is biased).  Without noise the w column is "
+            "learned well and the v column poorly (the speed barely varies: little "
+            "excitation)."
+        )
     return lines
 
 
 def _max_closed(summary: dict) -> float:
     vals = [e["max_rel_error"] for e in summary["unicycle_step"].values()]
-    vals += [summary["network_input"]["corrected_max_rel_error"],
-             summary["network_weights"]["max_rel_error"]]  # fmt: skip
+    vals += [
+        summary["network_input"]["corrected_max_rel_error"],
+        summary["network_weights"]["max_rel_error"],
+    ]
     for a in summary.get("along_runs", {}).get("scenarios", {}).values():
         vals += [e["max_rel_error"] for e in a["unicycle_step"].values()]
-        vals += [a["network_input"]["corrected_max_rel_error"], a["network_weights"]["max_rel_error"]]
+        vals += [
+            a["network_input"]["corrected_max_rel_error"],
+            a["network_weights"]["max_rel_error"],
+        ]
     return max(vals)
 
 
