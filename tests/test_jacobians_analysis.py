@@ -202,8 +202,10 @@ def test_along_run_and_learned_summary(lemniscate_short):
     assert a["error_dynamics_max_residual"]["corrected"] < jac.IDENTITY_TOL
     s = jac.summarise_learned([jac.learned_vs_true(r, sc)])
     assert s["seeds"] == 1
-    assert np.isfinite(s["rel_error"]["last_half"]["mean"])
-    assert -1.0 <= s["cosine"]["whole_run"]["mean"] <= 1.0
+    assert set(jac.LEARNED_KEYS) <= set(s)
+    assert np.isfinite(s["rel_error"]["mean"]) and np.isfinite(s["rel_error_whole_run"]["mean"])
+    assert -1.0 <= s["cosine"]["mean"] <= 1.0
+    assert 0.0 <= s["sign_w"]["mean"] <= 1.0
 
 
 def test_without_noise_zeroes_only_the_noise():
