@@ -51,7 +51,7 @@ BAD_SCENARIOS: list[tuple[str, str]] = [
     ("absurd size", _VALID.replace("duration = 2.0", "duration = 1e9")),
     ("wrong vector length", _VALID.replace("[0.0, 0.0, 0.0]", "[0.0, 0.0]")),
     ("unknown reference kind", _VALID.replace('kind = "sinusoid"', 'kind = "spiral"')),
-    ("unknown key", _VALID + "colour = 3\n"),
+    ("unknown key", "colour = 3\n" + _VALID),
     ("unknown key in a table", _VALID + "[noise]\npose_std = [0.0, 0.0, 0.0]\nbias = 1\n"),
     ("negative noise", _VALID + "[noise]\npose_std = [0.01, -0.01, 0.0]\n"),
     ("reversed disturbance window",
@@ -104,7 +104,7 @@ def bad_inputs() -> dict:
             outcomes.append({"input": what, "exit_code": code, "one_line": len(lines) == 1,
                              "starts_with_error": bool(lines) and lines[0].startswith("error: "),
                              "traceback": "Traceback" in err, "wrote_output": written,
-                             "message": lines[0] if lines else ""})  # fmt: skip
+                             "message": lines[0].replace(tmp, "<tmp>") if lines else ""})  # fmt: skip
     good = [o for o in outcomes if o["exit_code"] == 2 and o["one_line"] and
             o["starts_with_error"] and not o["traceback"] and not o["wrote_output"]]  # fmt: skip
     return {"tried": len(outcomes), "as_expected": len(good), "cases": outcomes}

@@ -165,31 +165,57 @@ def _reproduction(out: Path, rep: dict) -> list[str]:
     return lines
 
 
-def _generic(title: str, data: dict, figures: list[str]) -> list[str]:
-    """A section for a study's JSON: its scalar entries as a table, then its figures."""
+def _study(out: Path, stem: str, title: str, data: dict) -> list[str]:
+    """A study's section: its notes, its table (``tables/<stem>.md``) and its figures."""
     lines = [f"## {title}", ""]
-
-    def walk(prefix, obj, rows):
-        if isinstance(obj, dict):
-            for k, v in obj.items():
-                walk(f"{prefix}.{k}" if prefix else str(k), v, rows)
-        elif isinstance(obj, list) and obj and all(isinstance(x, int | float) for x in obj):
-            if len(obj) <= 8:
-                rows.append((prefix, ", ".join(_f(x) for x in obj)))
-        elif isinstance(obj, bool | int | float | str) or obj is None:
-            if not (isinstance(obj, str) and len(obj) > 200):
-                rows.append((prefix, _f(obj)))
-
-    rows: list = []
-    walk("", data, rows)
     notes = data.get("notes") if isinstance(data, dict) else None
-    lines += ["| quantity | value |", "|---|---|"] + [f"| {k} | {v} |" for k, v in rows if k != "notes"]
     if isinstance(notes, str):
-        lines += ["", notes]
+        lines += [notes, ""]
     elif isinstance(notes, list):
-        lines += [""] + [f"- {n}" for n in notes]
-    lines.append("")
-    lines += [f"![{f}](figures/{f})" for f in figures] + [""]
+        lines += [f"- {n}" for n in notes] + [""]
+    table = out / "tables" / f"{stem}.md"
+    if table.exists():
+        lines += table.read_text().rstrip().splitlines() + [""]
+    prefixes = ("perf",) if stem == "performance" else (stem,)
+    figs = sorted({p.name for pre in prefixes for p in (out / "figures").glob(f"{pre}*.png")})
+    lines += [f"![{f}](figures/{f})" for f in figs] + ([""] if figs else [])
+    return lines
+
+
+def _reliability(data: dict) -> list[str]:
+    s = data["summary"]
+    lines = ["## Reliability", "",
+             f"- Bad inputs tried through the CLI: {s['bad_inputs_tried']}; exit code 2 with one "
+             f"`error:` line, no traceback and nothing written: {s['bad_inputs_as_expected']}.",
+             f"- Serial and 2-worker studies bit-identical: {_f(s['serial_equals_parallel'])}; "
+             f"saturation respected by every controller: {_f(s['saturation_respected'])}.",
+             "", "| bad input | exit | message |", "|---|---|---|"]  # fmt: skip
+    for c in data["bad_inputs"]["cases"]:
+        msg = c["message"].replace("|", "\\|")
+        msg = msg if len(msg) < 110 else msg[:107] + "..."
+        lines.append(f"| {c['input']} | {c['exit_code']} | `{msg}` |")
+    lines += ["", "Long runs (one simulated hour, no trajectory kept; memory traced by tracemalloc):", "",
+              "| controller | steps | finite | position RMSE [m] | wall [s] | peak MB (2 chunks) | "
+              "peak MB (1 h) |", "|---|---|---|---|---|---|---|"]  # fmt: skip
+    for name, v in data["long_runs"].items():
+        lines.append(f"| {_label(name)} | {v['steps']} | {_f(v['finite'])} | "
+                     f"{_f(v['rmse_position'])} | {_f(v['seconds'], 1)} | "
+                     f"{_f(v['peak_traced_mb_short'], 2)} | {_f(v['peak_traced_mb_long'], 2)} |")
+    seam = data["seam"]
+    lines += ["", f"Heading seam: circles of {seam['turns']} turns (the heading crosses ±π once a "
+              "turn), noise 0.01: "
+              + "; ".join(f"{_label(k)} crossed {v['heading_seam_crossings']} times, θ RMSE "
+                          f"{_f(v['rmse_theta'])}" for k, v in seam.items() if isinstance(v, dict))
+              + ".", ""]  # fmt: skip
+    f = data["faults"]
+    lines += ["Faults injected:", "",
+              f"- a covariance with a negative diagonal entry: repaired "
+              f"{_f(f['negative_covariance_diagonal']['repaired'])}, positive definite after "
+              f"{_f(f['negative_covariance_diagonal']['positive_definite_after'])};",
+              "- pose noise std (5 m, 5 m, 3 rad) with a 2 m divergence bound: "
+              + "; ".join(f"{_label(k)} diverged at {_f(v['diverged_at'], 2)} s ({v['cause']})"
+                          for k, v in f["huge_noise"].items() if v["diverged"])
+              + "; the next run of the same study completed normally.", ""]  # fmt: skip
     return lines
 
 
@@ -208,19 +234,16 @@ def build(out: Path) -> str:
         lines += _reproduction(out, rep)
     else:
         lines += ["## Reproduction", "", "Not generated yet (`wmr reproduce`).", ""]
-    for name, title in (("jacobians.json", "Errata checked with exact Jacobians (CasADi)"),
-                        ("margins.json", "Linearised loops: margins (python-control)"),
-                        ("boundedness.json", "DEKF boundedness (Assumption 1, Lemma 2)"),
-                        ("performance.json", "Performance"),
-                        ("reliability.json", "Reliability")):  # fmt: skip
-        data = _load(out, name)
-        if data is None:
-            continue
-        stem = name.removesuffix(".json")
-        figs = sorted(p.name for p in (out / "figures").glob(f"{stem}*.png"))
-        if stem == "performance":
-            figs += sorted(p.name for p in (out / "figures").glob("perf*.png"))
-        lines += _generic(title, data, figs)
+    for stem, title in (("jacobians", "Errata checked with exact Jacobians (CasADi)"),
+                        ("margins", "Linearised loops: margins (python-control)"),
+                        ("boundedness", "DEKF boundedness (Assumption 1, Lemma 2)"),
+                        ("performance", "Performance")):  # fmt: skip
+        data = _load(out, f"{stem}.json")
+        if data is not None:
+            lines += _study(out, stem, title, data)
+    data = _load(out, "reliability.json")
+    if data is not None:
+        lines += _reliability(data)
     return "\n".join(lines).rstrip() + "\n"
 
 

@@ -15,7 +15,7 @@ import pytest
 from wmr import controllers, scenario as scn
 from wmr.controllers import pid
 from wmr.controllers.pid import S_K, S_PHI, S_Q, S_STARTED, S_U
-from wmr.kinematics import EULER, input_matrix, rotation
+from wmr.kinematics import EULER, EXACT, input_matrix, rotation, step_jacobians
 from wmr.sim import simulate
 
 EXACT_TOL = 1e-14  # same arithmetic up to reassociation of a handful of terms
@@ -145,16 +145,21 @@ def test_weight_covariance_stays_spd_along_default_runs(paper, name, scenario_na
 
 
 def test_iapid_identifier_learns_the_plant_jacobian_direction(paper):
-    """The identified Jacobian J = dt dNN/d(v, w) should approach dt G(theta) in the v-column
-    for x, y (cos theta, sin theta); we only require it to be finite and of the right order,
-    and report the relative error (the network is poorly excited in closed loop: DESIGN §5)."""
+    """The identified Jacobian J = dt dNN/d(v, w) points roughly the way of the true ZOH Jacobian
+    (cosine similarity of the 3x2 matrices, averaged over the last half of the run).  Its size is
+    biased by the closed-loop noise (analysis/jacobians.py measures it); direction is what SGD
+    needs for descent, so that is what is asserted."""
     r = simulate(paper["lemniscate"], "iapid-nn-dekf", seed=0)
     J = r.state[:, 6:12].reshape(-1, 3, 2)
     assert np.all(np.isfinite(J))
-    dt = r.dt
-    true = np.stack([dt * input_matrix(th) for th in r.q_hat[:, 2]])
-    rel = np.linalg.norm(J[-500:] - true[-500:]) / np.linalg.norm(true[-500:])
-    assert rel < 2.0  # finite, not exploding; the measured value is reported by the analyses
+    half = len(J) // 2
+    true = np.stack([step_jacobians(r.q_hat[k - 1], r.u[k - 1], r.dt, EXACT)[1]
+                     for k in range(half, len(J))])  # fmt: skip
+    learned = J[half:]
+    cos = np.sum(learned * true, axis=(1, 2)) / (
+        np.linalg.norm(learned, axis=(1, 2)) * np.linalg.norm(true, axis=(1, 2))
+    )
+    assert np.mean(cos) > 0.5  # measured ~0.8; a random or sign-flipped J gives ~0 or < 0
 
 
 def test_dann_starts_as_backstepping(paper):
