@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from wmr import cli, controllers, scenario as scn
+from wmr import cli, controllers
+from wmr import scenario as scn
 from wmr.ekf import repair_covariance
 from wmr.io import write_json
 from wmr.sim import simulate

@@ -7,12 +7,11 @@ settings defaults, for the assumptions table); nothing is typed by hand.  ``main
 
 from __future__ import annotations
 
-import dataclasses
 import json
-import math
 from pathlib import Path
 
-from wmr import controllers, scenario as scn
+from wmr import controllers
+from wmr import scenario as scn
 from wmr.io import atomic_write_text
 
 __all__ = ["build", "main"]

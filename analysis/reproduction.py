@@ -23,8 +23,9 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
-from wmr import controllers, scenario as scn
-from wmr.io import save_figure, write_csv, write_json, atomic_write_text
+from wmr import controllers
+from wmr import scenario as scn
+from wmr.io import atomic_write_text, save_figure, write_csv, write_json
 from wmr.study import ROW_HEADER, Job, Row, run_jobs
 
 __all__ = ["PAPER_RMSE", "VARIANTS", "build_jobs", "summarise", "main"]

@@ -12,7 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from wmr import controllers, scenario as scn
+from wmr import controllers
+from wmr import scenario as scn
 from wmr.controllers import pid
 from wmr.controllers.pid import S_K, S_PHI, S_Q, S_STARTED, S_U
 from wmr.kinematics import EULER, EXACT, input_matrix, rotation, step_jacobians

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from wmr import ekf, kinematics as kin
+from wmr import ekf
+from wmr import kinematics as kin
 
 REL_TOL = 1e-12  # the expanded Joseph form reassociates O(n m) sums: a few ulps of ||P||
 

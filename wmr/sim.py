@@ -124,7 +124,7 @@ def _advance_template(
             Pq[:, :] = Rp
         else:
             pose_update(q_hat, Pq, z, Rp)
-        law(p, s, W, P, q_hat, ref[i], dt, u)
+        law(p, s, W, P, q_hat, ref[i], dt, u)  # noqa: F821 - bound per controller by kernel()
         u[0] = min(max(u[0], -v_max), v_max)
         u[1] = min(max(u[1], -w_max), w_max)
         if keep:
