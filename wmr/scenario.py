@@ -316,7 +316,3 @@ def builtin(name: str) -> Path:
         raise FileNotFoundError(f"no built-in scenario {name!r}; known: {', '.join(PAPER_SCENARIOS)}")
     return path
 
-
-def replace(scenario: Scenario, **changes) -> Scenario:
-    """``dataclasses.replace`` for scenarios (re-validates nothing beyond the dataclasses)."""
-    return dataclasses.replace(scenario, **changes)

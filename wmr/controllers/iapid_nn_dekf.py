@@ -78,7 +78,7 @@ class Settings(pid.Settings):
 def pack(settings: Settings, scenario, rng):
     """``(p, s, W, P)``: PID parameters, network weights ``W`` (n,) and covariance ``P0``."""
     n = nn.n_weights(N_IN, settings.hidden, N_OUT)
-    base = pid._base_params(settings, 2, INTEGRATORS[scenario.integrator], n_h=settings.hidden,
+    base = pid.make_params(settings, 2, INTEGRATORS[scenario.integrator], n_h=settings.hidden,
                             printed_jacobian=settings.printed_jacobian,
                             q_diag=np.full(n, settings.q), R=settings.r * np.eye(N_OUT))  # fmt: skip
     p = Params(*base, H=np.zeros((N_OUT, n)), work=np.zeros((3, n, N_OUT)))

@@ -40,6 +40,7 @@ __all__ = [
     "Params",
     "STATE_NAMES",
     "pack",
+    "make_params",
     "law",
     "pid_output",
     "sgd_gain_step",
@@ -117,7 +118,9 @@ class Settings:
             check(lo <= k <= hi, "gains", self.gains, "must lie within [gain_min, gain_max]")
 
 
-def _base_params(settings: Settings, adaptive: int, integrator: int = 0, **nn) -> Params:
+def make_params(settings: Settings, adaptive: int, integrator: int = 0, **nn) -> Params:
+    """Jitted-side parameters: ``adaptive`` 0 fixed, 1 analytic Jacobian, 2 network Jacobian;
+    ``nn`` holds the network size and weight-filter matrices for ``iapid-nn-dekf``."""
     return Params(
         K_min=np.array(settings.gain_min),
         K_max=np.array(settings.gain_max),
@@ -149,7 +152,7 @@ class FixedSettings(Settings):
 
 def pack(settings: Settings, scenario, rng):
     """``(p, s, W, P)`` for ``pid``/``adaptive-pid``: no network, so ``W`` and ``P`` are empty."""
-    p = _base_params(settings, 1 if settings.adapt else 0, INTEGRATORS[scenario.integrator])
+    p = make_params(settings, 1 if settings.adapt else 0, INTEGRATORS[scenario.integrator])
     return p, initial_state(settings), np.zeros(0), np.zeros((0, 0))
 
 
