@@ -1,4 +1,4 @@
-"""Stability margins of the linearised sampled-data loops: the fixed PID of eq. (7) and backstepping.
+"""Stability margins of the linearised sampled-data loops: the fixed PID (eq. 7), backstepping.
 
 Linearisation (issue 4, item 3).  About perfect tracking of a reference with constant
 ``(v_r, w_r)`` the error dynamics of one sample period are ``de_{k+1} = E de_k + B du_k`` with
@@ -70,7 +70,6 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
-import casadi as ca
 import control as ct
 import numpy as np
 from scipy import optimize
@@ -217,8 +216,17 @@ def pid_controller(gains, dt: float) -> ct.StateSpace:
     D = np.array([[gv, 0.0, 0.0],
                   [0.0, gw, gw]])
     # fmt: on
-    return ct.ss(A, B, C, D, dt, inputs=("e1", "e2", "e3"), outputs=("v", "w"),
-                 states=("I_e1", "I_s", "e1_prev", "s_prev"), name="controller")  # fmt: skip
+    return ct.ss(
+        A,
+        B,
+        C,
+        D,
+        dt,
+        inputs=("e1", "e2", "e3"),
+        outputs=("v", "w"),
+        states=("I_e1", "I_s", "e1_prev", "s_prev"),
+        name="controller",
+    )  # fmt: skip
 
 
 def backstepping_controller(gains, op: OperatingPoint) -> ct.StateSpace:
@@ -261,7 +269,7 @@ def backstepping_loops(op: OperatingPoint, gains=BSC_GAINS) -> dict[str, ct.Stat
 
 
 def closed_loop_matrix(L: ct.StateSpace, f: complex = 1.0) -> np.ndarray:
-    """State matrix of the loop ``L`` closed through ``f`` (``u = -f y``): ``A - f B (1 + f D)^-1 C``.
+    """State matrix of ``L`` closed through ``f`` (``u = -f y``): ``A - f B (1 + f D)^-1 C``.
 
     ``f = 1`` gives the nominal closed loop (every loop of :func:`pid_loops` has the same one).
     """
@@ -275,7 +283,7 @@ def spectral_radius(A: np.ndarray) -> float:
 
 
 def frequency_response(L: ct.StateSpace, omega) -> np.ndarray:
-    """``L(exp(j omega dt))`` for a SISO discrete ``L`` at frequencies ``omega`` [rad/s] (vectorised)."""
+    """``L(exp(j omega dt))`` of a SISO discrete ``L`` at ``omega`` [rad/s], vectorised."""
     omega = np.atleast_1d(np.asarray(omega, dtype=float))
     n = L.A.shape[0]
     z = np.exp(1j * omega * L.dt)
@@ -318,7 +326,9 @@ class LoopMargins:
 
     @property
     def gain_margin_lower_db(self) -> float:
-        return 20.0 * math.log10(self.gain_margin_lower) if self.gain_margin_lower > 0 else -math.inf
+        return (
+            20.0 * math.log10(self.gain_margin_lower) if self.gain_margin_lower > 0 else -math.inf
+        )
 
     def to_json(self) -> dict:
         out = {
@@ -440,7 +450,7 @@ def loop_margins(L: ct.StateSpace, *, python_control: bool = True, n_grid: int =
 
 
 def _first_crossing(rho, xs, tol=1e-12):
-    """First ``x`` in the ordered ``xs`` where ``rho(x) >= 1``, refined by bisection; None if none."""
+    """First ``x`` of the ordered ``xs`` with ``rho(x) >= 1``, refined by bisection; else None."""
     prev = xs[0]
     for x in xs[1:]:
         if rho(x) >= 1.0:
@@ -484,7 +494,8 @@ def eigen_margins(L: ct.StateSpace, n_psi: int = 73) -> dict:
     psis = np.linspace(0.0, math.pi, n_psi)
     crit = np.array([alpha_crit(p) for p in psis])
     i = int(np.argmin(crit))
-    res = optimize.minimize_scalar(alpha_crit, bounds=(psis[max(i - 1, 0)], psis[min(i + 1, n_psi - 1)]),
+    bounds = (psis[max(i - 1, 0)], psis[min(i + 1, n_psi - 1)])
+    res = optimize.minimize_scalar(alpha_crit, bounds=bounds,
                                    method="bounded", options={"xatol": 1e-9})  # fmt: skip
     return {
         "gain_margin": math.inf if g_hi is None else 10.0**g_hi,
@@ -812,15 +823,14 @@ def printed_rotation_sweep(op: OperatingPoint, headings_deg, pid_gains=PID_GAINS
 def _unstable_intervals(x, unstable) -> list:
     """``[[start, stop], ...]`` of the runs of True in ``unstable`` over the grid ``x``."""
     out, start = [], None
-    for xi, u in zip(x, unstable, strict=True):
+    for i, u in enumerate(unstable):
         if u and start is None:
-            start = xi
+            start = i
         if not u and start is not None:
-            out.append([float(start), float(prev)])
+            out.append([float(x[start]), float(x[i - 1])])
             start = None
-        prev = xi
     if start is not None:
-        out.append([float(start), float(x[-1])])
+        out.append([float(x[start]), float(x[-1])])
     return out
 
 
@@ -871,11 +881,13 @@ def _table(results: dict) -> str:
                 m = rec[name][ch]
                 cells.append(f"{f(m['gain_margin_db'], 1)} / {f(m['phase_margin_deg'], 1)} / "
                              f"{f(m['disk_margin'], 3)}")  # fmt: skip
-        lines.append(f"| {label} | {rec['v_r']:.3f} | {rec['w_r']:.3f} | " + " | ".join(cells) + " |")
+        lines.append(
+            f"| {label} | {rec['v_r']:.3f} | {rec['w_r']:.3f} | " + " | ".join(cells) + " |"
+        )
     return "\n".join(lines) + "\n"
 
 
-def _region_figure(regions: list, out: Path, along: dict | None = None) -> str:
+def _region_figure(regions: list, out: Path) -> str:
     import matplotlib.pyplot as plt
     from matplotlib.colors import TwoSlopeNorm
 
@@ -900,7 +912,8 @@ def _region_figure(regions: list, out: Path, along: dict | None = None) -> str:
             ax.set(xlabel="Kpw", ylabel="Kiw")
             title = "w loop: continuous-time Routh boundary (orange dashed)"
         ax.set(xscale="log", yscale="log",
-               title=f"{title}\nmax|z| (black: = 1), v_r={op.v_r:.3f}, w_r={op.w_r:.3f}")  # fmt: skip
+               title=f"{title}\nmax|z| (black: = 1), v_r={op.v_r:.3f}, w_r={op.w_r:.3f}",
+               )  # fmt: skip
         ax.legend(loc="lower left", fontsize=8)
         fig.colorbar(im, ax=ax, label="spectral radius max|z| (clipped to [0.9, 1.1]; blue stable)")
     save_figure(fig, out / "figures" / "margins_stability_region.png")
@@ -964,7 +977,7 @@ def _arrays_to_json(rec: dict) -> dict:
 
 
 def main(out: str | Path = "paper", every: int = 50, seed: int = 0) -> dict:
-    """Run the margin study and write ``results/margins.json``, ``tables/margins.md`` and figures."""
+    """Run the study; write ``results/margins.json``, ``tables/margins.md`` and the figures."""
     from wmr.sim import simulate
 
     out = Path(out)
@@ -975,9 +988,16 @@ def main(out: str | Path = "paper", every: int = 50, seed: int = 0) -> dict:
     # Headline: fixed PID and backstepping at the operating point.
     loops_pid, loops_bsc = pid_loops(op), backstepping_loops(op)
     res_pid, res_bsc = analyse_loops(loops_pid), analyse_loops(loops_bsc)
-    results: dict = {"operating_point": {**op.to_json(), "how": (
-        "time-mean v_r of the sinusoid scenario's reference over its 40 s, w_r = 0 (the straight "
-        "line; the sinusoid's mean curvature is 0); other points under operating_points")}}
+    results: dict = {
+        "operating_point": {
+            **op.to_json(),
+            "how": (
+                "time-mean v_r of the sinusoid scenario's reference over its 40 s, w_r = 0 "
+                "(the straight line; the sinusoid's mean curvature is 0); other points under "
+                "operating_points"
+            ),
+        }
+    }
     results["pid"] = {**_controller_record(loops_pid, res_pid, PID_GAINS), "feed_forward": False}
     results["backstepping"] = _controller_record(loops_bsc, res_bsc, BSC_GAINS)
     A_c = np.asarray(sym.backstepping_jacobian_function()(op.v_r, op.w_r, *BSC_GAINS))
@@ -1014,8 +1034,12 @@ def main(out: str | Path = "paper", every: int = 50, seed: int = 0) -> dict:
 
     # Other operating points.
     curved = operating_point(scenarios["sinusoid"], "max-curvature")
-    ops = [op, curved, operating_point(scenarios["lemniscate"], "mean"),
-           operating_point(scenarios["lemniscate"], "max-curvature")]
+    ops = [
+        op,
+        curved,
+        operating_point(scenarios["lemniscate"], "mean"),
+        operating_point(scenarios["lemniscate"], "max-curvature"),
+    ]
     results["operating_points"] = {}
     for o in ops:
         rp, rb = analyse_loops(pid_loops(o), cross_check=False), analyse_loops(
@@ -1151,7 +1175,9 @@ def _self_check(results: dict) -> None:
     assert cc["pid_feed_forward_jacobian_max_abs_diff"] < 1e-12
     assert cc["printed_at_heading_0_equals_corrected_max_abs"] < 1e-12
     # eig(A_d) - exp(eig(A) dt) is O(dt^2): halving dt divides it by ~4.
-    assert 3.0 < cc["bsc_discrete_vs_exp_continuous"]["ratio"] < 5.0, cc["bsc_discrete_vs_exp_continuous"]
+    assert 3.0 < cc["bsc_discrete_vs_exp_continuous"]["ratio"] < 5.0, cc[
+        "bsc_discrete_vs_exp_continuous"
+    ]
     for name in ("pid", "backstepping"):
         for ch in CHANNELS:
             c = cc[f"{name}_{ch}_eigen_vs_frequency"]

@@ -144,8 +144,9 @@ def test_pid_closed_loop_jacobian_equals_central_differences(printed):
         v_r, w_r, K = _random_case(rng)
         x = np.concatenate((rng.normal(scale=0.1, size=3), rng.normal(size=4)))
         extra = [rng.uniform(-math.pi, math.pi)] if printed else []
-        fd = central_fd(lambda xx: _np(f(xx, [v_r, w_r], K, 0.01, *extra)), x)
-        assert_allclose(_np(J(x, [v_r, w_r], K, 0.01, *extra)), fd, atol=FD_TOL)
+        args = ([v_r, w_r], K, 0.01, *extra)
+        fd = central_fd(lambda xx, a=args: _np(f(xx, *a)), x)
+        assert_allclose(_np(J(x, *args)), fd, atol=FD_TOL)
 
 
 def test_feed_forward_does_not_change_the_linearisation():

@@ -573,7 +573,7 @@ def pid_closed_loop_jacobian_function(
 def backstepping_closed_loop_step_function(
     integrator: str = "exact", printed: bool = False
 ) -> ca.Function:
-    """One sample under backstepping, state the corrected error: ``e_next(e, u_r, k, dt[, theta_r])``.
+    """One sample under backstepping (state: corrected error): ``e_next(e, u_r, k, dt[, theta_r])``.
 
     As :func:`pid_closed_loop_step_function` with the static law of
     :func:`backstepping_law_function` applied to the controller's error (printed or corrected);
