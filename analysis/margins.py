@@ -108,6 +108,10 @@ __all__ = [
     "stability_region",
     "margins_along_run",
     "printed_rotation_sweep",
+    "unstable_intervals",
+    "stability_region_figure",
+    "along_runs_figure",
+    "printed_rotation_figure",
     "slow_mode_error",
     "decay_check",
     "main",
@@ -802,6 +806,9 @@ def printed_rotation_sweep(op: OperatingPoint, headings_deg, pid_gains=PID_GAINS
                            bsc_gains=BSC_GAINS) -> dict:  # fmt: skip
     """Spectral radius vs reference heading with the printed error matrix of eqs. 4/6 (E3).
 
+    Returns ``headings_deg`` and the radii ``pid_rho``, ``bsc_rho`` (printed) per heading, and
+    ``pid_rho_corrected``, ``bsc_rho_corrected`` (the same at every heading).
+
     On a straight line (``w_r = 0`` required: the heading is then constant and the loop LTI) the
     printed error is ``N(theta) e`` with ``N = [[1, 0, 0], [sin 2theta, cos 2theta, 0], [0, 0, 1]]``
     (corrected ``e``), so the loop depends on the heading; the corrected loop does not.  Closed
@@ -817,10 +824,15 @@ def printed_rotation_sweep(op: OperatingPoint, headings_deg, pid_gains=PID_GAINS
     rp = np.array([spectral_radius(np.asarray(fp(xs, op.u_r, pid_gains, op.dt, t))) for t in th])
     rb = np.array([spectral_radius(np.asarray(fb(np.zeros(3), op.u_r, bsc_gains, op.dt, t)))
                    for t in th])  # fmt: skip
-    return {"headings_deg": np.asarray(headings_deg, dtype=float), "pid_rho": rp, "bsc_rho": rb}
+    A_pid = sym.pid_closed_loop_jacobian_function(op.integrator)(xs, op.u_r, pid_gains, op.dt)
+    A_bsc = sym.backstepping_closed_loop_jacobian_function(op.integrator)(
+        np.zeros(3), op.u_r, bsc_gains, op.dt)  # fmt: skip
+    return {"headings_deg": np.asarray(headings_deg, dtype=float), "pid_rho": rp, "bsc_rho": rb,
+            "pid_rho_corrected": spectral_radius(np.asarray(A_pid)),
+            "bsc_rho_corrected": spectral_radius(np.asarray(A_bsc))}  # fmt: skip
 
 
-def _unstable_intervals(x, unstable) -> list:
+def unstable_intervals(x, unstable) -> list:
     """``[[start, stop], ...]`` of the runs of True in ``unstable`` over the grid ``x``."""
     out, start = [], None
     for i, u in enumerate(unstable):
@@ -887,41 +899,50 @@ def _table(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _region_figure(regions: list, out: Path) -> str:
+def stability_region_figure(regions: list):
+    """Figure of :func:`stability_region` results (one panel each); returns the figure."""
     import matplotlib.pyplot as plt
-    from matplotlib.colors import TwoSlopeNorm
+    from matplotlib.colors import ListedColormap, LogNorm
 
     fig, axes = plt.subplots(1, len(regions), figsize=(6.2 * len(regions), 5), layout="constrained")
     for ax, reg in zip(np.atleast_1d(axes), regions, strict=True):
         kp, ki, rho = reg["kp"], reg["ki"], reg["rho"]
         op = reg["operating_point"]
-        im = ax.pcolormesh(kp, ki, np.clip(rho, 0.9, 1.1), shading="nearest", cmap="RdBu_r",
-                           norm=TwoSlopeNorm(1.0, 0.9, 1.1))  # fmt: skip
+        stable = rho < 1.0
+        with np.errstate(divide="ignore"):
+            tau = np.where(stable, -op.dt / np.log(np.where(stable, rho, 0.5)), np.nan)
+        im = ax.pcolormesh(kp, ki, tau, shading="nearest", cmap="viridis",
+                           norm=LogNorm(op.dt, 1e3))  # fmt: skip
+        ax.pcolormesh(kp, ki, np.where(stable, np.nan, 1.0), shading="nearest",
+                      cmap=ListedColormap(["lightcoral"]))  # fmt: skip
         ax.contour(kp, ki, rho, levels=[1.0], colors="k", linewidths=1.5)
         P, I = np.meshgrid(kp, ki)
         if reg["pair"] == "v":
             ax.contour(kp, ki, jury_v_loop_stable(P, I, op.dt).astype(float), levels=[0.5],
                        colors="orange", linestyles="--", linewidths=1.5)  # fmt: skip
-            ax.plot(PID_GAINS[0], PID_GAINS[1], "k*", ms=12, label="default gains")
+            ax.plot(PID_GAINS[0], PID_GAINS[1], "w*", mec="k", ms=14, label="default gains")
             ax.set(xlabel="Kpv", ylabel="Kiv")
-            title = "v loop: closed-form Jury boundary (orange dashed)"
+            title = "v loop; orange dashed: closed-form Jury boundary"
         else:
             ax.contour(kp, ki, routh_w_loop_stable(P, I, op.v_r).astype(float), levels=[0.5],
                        colors="orange", linestyles="--", linewidths=1.5)  # fmt: skip
-            ax.plot(PID_GAINS[3], PID_GAINS[4], "k*", ms=12, label="default gains")
+            ax.plot(PID_GAINS[3], PID_GAINS[4], "w*", mec="k", ms=14, label="default gains")
             ax.set(xlabel="Kpw", ylabel="Kiw")
-            title = "w loop: continuous-time Routh boundary (orange dashed)"
+            title = "w loop; orange dashed: continuous-time Routh boundary"
         ax.set(xscale="log", yscale="log",
-               title=f"{title}\nmax|z| (black: = 1), v_r={op.v_r:.3f}, w_r={op.w_r:.3f}",
+               title=f"{title}\nred: unstable (max|z| > 1); v_r={op.v_r:.3f}, w_r={op.w_r:.3f}",
                )  # fmt: skip
         ax.legend(loc="lower left", fontsize=8)
-        fig.colorbar(im, ax=ax, label="spectral radius max|z| (clipped to [0.9, 1.1]; blue stable)")
-    save_figure(fig, out / "figures" / "margins_stability_region.png")
-    plt.close(fig)
-    return "margins_stability_region.png"
+        fig.colorbar(im, ax=ax, label="slowest closed-loop time constant -dt/ln max|z| [s]")
+    fig.suptitle(
+        "Stability region of the fixed PID (eq. 7), other gains at their defaults "
+        "(colour: slowest mode of the whole loop)"
+    )
+    return fig
 
 
-def _along_figure(along: dict, out: Path) -> str:
+def along_runs_figure(along: dict):
+    """Figure of ``{scenario: {controller: margins_along_run(...)}}``; returns the figure."""
     import matplotlib.pyplot as plt
 
     from wmr.plots import COLORS, LABELS
@@ -947,12 +968,11 @@ def _along_figure(along: dict, out: Path) -> str:
             ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize=7, ncol=2)
     fig.suptitle("Frozen-time margins along runs (seed 0) as the gains adapt; v solid, w dashed")
-    save_figure(fig, out / "figures" / "margins_along_runs.png")
-    plt.close(fig)
-    return "margins_along_runs.png"
+    return fig
 
 
-def _printed_figure(sweep: dict, out: Path) -> str:
+def printed_rotation_figure(sweep: dict):
+    """Figure of :func:`printed_rotation_sweep` (plus the corrected radii); returns the figure."""
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7, 3.6), layout="constrained")
@@ -966,9 +986,7 @@ def _printed_figure(sweep: dict, out: Path) -> str:
            ylim=(0.95, 1.05), xticks=np.arange(-180, 181, 45))  # fmt: skip
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    save_figure(fig, out / "figures" / "margins_printed_rotation.png")
-    plt.close(fig)
-    return "margins_printed_rotation.png"
+    return fig
 
 
 def _arrays_to_json(rec: dict) -> dict:
@@ -978,6 +996,8 @@ def _arrays_to_json(rec: dict) -> dict:
 
 def main(out: str | Path = "paper", every: int = 50, seed: int = 0) -> dict:
     """Run the study; write ``results/margins.json``, ``tables/margins.md`` and the figures."""
+    import matplotlib.pyplot as plt
+
     from wmr.sim import simulate
 
     out = Path(out)
@@ -1113,15 +1133,13 @@ def main(out: str | Path = "paper", every: int = 50, seed: int = 0) -> dict:
     headings = np.linspace(-180.0, 180.0, 361)
     sweep = printed_rotation_sweep(op, headings)
     xs = pid_equilibrium(op, PID_GAINS)
-    sweep["pid_rho_corrected"] = spectral_radius(A_casadi)
-    sweep["bsc_rho_corrected"] = spectral_radius(A_bd)
     pr = sym.pid_closed_loop_jacobian_function(op.integrator, printed=True)
     cc["printed_at_heading_0_equals_corrected_max_abs"] = float(np.abs(
         np.asarray(pr(xs, op.u_r, PID_GAINS, dt, 0.0)) - A_casadi).max())  # fmt: skip
     results["printed_rotation"] = {
         "operating_point": op.to_json(),
-        "pid_unstable_headings_deg": _unstable_intervals(headings, sweep["pid_rho"] > 1.0 + 1e-12),
-        "bsc_unstable_headings_deg": _unstable_intervals(headings, sweep["bsc_rho"] > 1.0 + 1e-12),
+        "pid_unstable_headings_deg": unstable_intervals(headings, sweep["pid_rho"] > 1.0 + 1e-12),
+        "bsc_unstable_headings_deg": unstable_intervals(headings, sweep["bsc_rho"] > 1.0 + 1e-12),
         "pid_max_spectral_radius": float(np.max(sweep["pid_rho"])),
         "bsc_max_spectral_radius": float(np.max(sweep["bsc_rho"])),
         "spectral_radius_at": {f"{int(h)}": {"pid": float(sweep["pid_rho"][i]),
@@ -1130,7 +1148,15 @@ def main(out: str | Path = "paper", every: int = 50, seed: int = 0) -> dict:
                                for i in [int(np.argmin(np.abs(headings - h)))]},
     }  # fmt: skip
 
-    figures = [_region_figure(regions, out), _along_figure(along, out), _printed_figure(sweep, out)]
+    figures = []
+    for name, fig in (
+        ("margins_stability_region.png", stability_region_figure(regions)),
+        ("margins_along_runs.png", along_runs_figure(along)),
+        ("margins_printed_rotation.png", printed_rotation_figure(sweep)),
+    ):
+        save_figure(fig, out / "figures" / name)
+        plt.close(fig)
+        figures.append(name)
     results["cross_checks"] = cc
     results["figures"] = figures
     results["notes"] = [
