@@ -106,6 +106,8 @@ __all__ = [
     "jury_v_loop_stable",
     "routh_w_loop_stable",
     "stability_region",
+    "stable_gain_interval",
+    "gain_limit_check",
     "margins_along_run",
     "printed_rotation_sweep",
     "unstable_intervals",
@@ -776,6 +778,60 @@ def stability_region(op: OperatingPoint, pair: str = "w", n: int = 81,
     return {"pair": pair, "kp": kp, "ki": ki, "rho": rho, "operating_point": op}
 
 
+def stable_gain_interval(op: OperatingPoint, index: int, gains=PID_GAINS,
+                         limits=(1e-6, 1e6)) -> tuple[float, float]:  # fmt: skip
+    """The interval of PID gain ``index`` (0..5, order of eq. 7) keeping the loop stable, the
+    others at ``gains``: the connected interval of ``max|z| < 1`` containing ``gains[index]``,
+    scanned on a log grid within ``limits`` and refined by bisection; ``0`` / ``inf`` when
+    stable up to the limit.  A zero default (``Kd``) starts the search at ``limits[0]``."""
+    E, B = (np.asarray(M) for M in sym.error_step_jacobian_function(op.integrator)(
+        np.zeros(3), op.u_r, op.u_r, op.dt))  # fmt: skip
+    K = np.array(gains, dtype=float)
+
+    def rho(lg):
+        K[index] = 10.0**lg
+        return spectral_radius(pid_closed_loop_matrix(E, B, K, op.dt))
+
+    g0 = max(float(gains[index]), limits[0])
+    l0, l_lo, l_hi = math.log10(g0), math.log10(limits[0]), math.log10(limits[1])
+    if rho(l0) >= 1.0:
+        return (math.nan, math.nan)
+    up = _first_crossing(rho, np.linspace(l0, l_hi, 241), tol=1e-13)
+    down = _first_crossing(rho, np.linspace(l0, l_lo, 241), tol=1e-13) if g0 > limits[0] else None
+    return (0.0 if down is None else 10.0**down, math.inf if up is None else 10.0**up)
+
+
+def gain_limit_check(op: OperatingPoint, index: int, limit: float, factors=(0.98, 1.02),
+                     steps: int = 3000, size: float = 1e-3) -> list[dict]:  # fmt: skip
+    """Simulate the fixed PID with gain ``index`` at ``factor * limit`` (others at defaults).
+
+    The nonlinear loop (feed-forward on, so that it starts at its equilibrium; no noise) starts
+    at an error of norm ``size`` that excites the slowest mode; returns, per factor, the
+    closed-loop ``max|z|`` of the linearisation and the ratio of the error norm over the last
+    tenth of the run to the initial one (< 1 decaying, > 1 growing), or the divergence time.
+    """
+    from wmr.sim import simulate
+
+    out = []
+    for factor in factors:
+        K = list(PID_GAINS)
+        K[index] = factor * limit
+        A = closed_loop_matrix(pid_loops(op, K)["v"])
+        M = np.vstack((np.eye(3), np.zeros((2, 3)), [[1.0, 0.0, 0.0], [0.0, 1.0, 1.0]]))
+        e0 = slow_mode_error(A, M, size)
+        settings = pid_mod.FixedSettings(gains=tuple(K), feed_forward=True,
+                                         gain_max=tuple(max(g, 50.0) for g in K))  # fmt: skip
+        run = simulate(_constant_reference_scenario(op, steps * op.dt, e0), "pid", seed=0,
+                       settings=settings)  # fmt: skip
+        e = np.array([tracking_error(q, r) for q, r in zip(run.q, run.ref, strict=True)])
+        tail = np.linalg.norm(e[-max(len(e) // 10, 1) :], axis=1)
+        out.append({"gain": pid_mod.GAIN_NAMES[index], "value": factor * limit,
+                    "factor": factor, "spectral_radius": spectral_radius(A),
+                    "tail_over_initial": float(np.max(tail) / size),
+                    "diverged_at": run.diverged_at})  # fmt: skip
+    return out
+
+
 def margins_along_run(run, every: int = 50) -> dict:
     """Frozen-time margins along a run of the PID family, every ``every`` steps.
 
@@ -896,6 +952,12 @@ def _table(results: dict) -> str:
         lines.append(
             f"| {label} | {rec['v_r']:.3f} | {rec['w_r']:.3f} | " + " | ".join(cells) + " |"
         )
+    iv = results["stability_region"]["stable_interval_one_gain_at_a_time"]
+    lines += ["", "Stable interval of each PID gain, the others at (5, 5, 0, 10, 2, 0), at the "
+              "operating point above:", "",
+              "| gain | " + " | ".join(iv) + " |", "|---|" + "---|" * len(iv),
+              "| stable for | " + " | ".join(f"({f(lo, 3)}, {f(hi, 3)})" for lo, hi in iv.values())
+              + " |"]  # fmt: skip
     return "\n".join(lines) + "\n"
 
 
@@ -1071,11 +1133,10 @@ def main(out: str | Path = "paper", every: int = 50, seed: int = 0) -> dict:
             "backstepping": {**{ch: rb[ch].to_json() for ch in CHANNELS},
                              "spectral_radius": rb["spectral_radius"]},
         }  # fmt: skip
-        rm = {"v": -1.0, "w": 1.0}  # mirror image: -w_r has the same margins
+        # The mirror image (y -> -y) of the loop at -w_r has the same margins.
         mirror = analyse_loops(pid_loops(dataclasses.replace(o, w_r=-o.w_r)), cross_check=False)
-        cc.setdefault("mirror_w_r_max_pm_diff_deg", 0.0)
-        cc["mirror_w_r_max_pm_diff_deg"] = max(cc["mirror_w_r_max_pm_diff_deg"], max(
-            abs(mirror[ch].phase_margin_deg - rp[ch].phase_margin_deg) for ch in rm))  # fmt: skip
+        diff = max(abs(mirror[ch].phase_margin_deg - rp[ch].phase_margin_deg) for ch in CHANNELS)
+        cc["mirror_w_r_max_pm_diff_deg"] = max(cc.get("mirror_w_r_max_pm_diff_deg", 0.0), diff)
 
     # Eigenvalues vs the simulator.
     decay = [decay_check("pid", op, PID_GAINS), decay_check("pid", curved, PID_GAINS),
@@ -1097,14 +1158,27 @@ def main(out: str | Path = "paper", every: int = 50, seed: int = 0) -> dict:
     agree_w = (reg_w["rho"] < 1.0)[low] == routh_w_loop_stable(Pw, Iw, op.v_r)[low]
     cc["region_w_agrees_with_continuous_routh_for_Kpw_below_10"] = float(np.mean(agree_w))
     results["stability_region"] = {
-        reg["pair"]: {"kp": [float(x) for x in reg["kp"]], "ki": [float(x) for x in reg["ki"]],
-                      "stable_fraction": float(np.mean(reg["rho"] < 1.0)),
-                      "max_stable_kp_at_default_ki": float(np.max(
-                          reg["kp"][reg["rho"][np.argmin(np.abs(np.log(reg["ki"] / (
-                              PID_GAINS[1] if reg["pair"] == "v" else PID_GAINS[4])))), :] < 1.0],
-                          initial=0.0))}
-        for reg in regions
+        "operating_point": op.to_json(),
+        **{reg["pair"]: {"kp": [float(x) for x in reg["kp"]],
+                         "ki": [float(x) for x in reg["ki"]],
+                         "stable_fraction": float(np.mean(reg["rho"] < 1.0))}
+           for reg in regions},
+        "stable_interval_one_gain_at_a_time": {
+            name: [_num(x) for x in stable_gain_interval(op, i)]
+            for i, name in enumerate(pid_mod.GAIN_NAMES)},
     }  # fmt: skip
+
+    intervals = results["stability_region"]["stable_interval_one_gain_at_a_time"]
+    # Jury (w_r = 0, Kdv = 0): Kpv < min(2/dt, (4 - dt^2 Kiv)/(2 dt)), Kiv < (4 - 2 dt Kpv)/dt^2.
+    jury_kpv = min(2 / dt, (4 - dt * dt * PID_GAINS[1]) / (2 * dt))
+    jury_kiv = (4 - 2 * dt * PID_GAINS[0]) / dt**2
+    cc["gain_limits_vs_jury_rel_diff"] = max(abs(intervals["Kpv"][1] / jury_kpv - 1),
+                                             abs(intervals["Kiv"][1] / jury_kiv - 1))  # fmt: skip
+
+    cc["gain_limits_simulated"] = [
+        d for name in ("Kdv", "Kdw", "Kpv")
+        for d in gain_limit_check(op, pid_mod.GAIN_NAMES.index(name), intervals[name][1])
+    ]  # fmt: skip
 
     # Margins along runs.
     along: dict = {}
@@ -1177,6 +1251,9 @@ def main(out: str | Path = "paper", every: int = 50, seed: int = 0) -> dict:
         "Linearisation without feed-forward (literal eq. 7) and with it are identical at a "
         "constant (v_r, w_r): the feed-forward only moves the integrals' equilibrium to zero.",
         "Along runs the analysis is frozen-time (gains and (v_r, w_r) frozen at t_k).",
+        "stable_interval_one_gain_at_a_time: each gain varied alone, the others at their "
+        "defaults. The derivative gains destabilise the loop at Kdv ~ 0.975 and Kdw ~ 0.95 "
+        "(dt = 0.01): below the SGD clamp gain_max = 1 of wmr.controllers.pid.Settings.",
         "Printed rotation (E3): on a straight line the controller sees N(theta) e with "
         "N = [[1,0,0],[sin 2theta, cos 2theta, 0],[0,0,1]]; the loop depends on the heading.",
     ]
@@ -1218,6 +1295,10 @@ def _self_check(results: dict) -> None:
         if "max_deviation_from_linear_rel" in d:
             assert d["max_deviation_from_linear_rel"] < 0.02, d
     assert cc["region_v_agrees_with_jury"] == 1.0, cc["region_v_agrees_with_jury"]
+    assert cc["gain_limits_vs_jury_rel_diff"] < 1e-9, cc["gain_limits_vs_jury_rel_diff"]
+    for d in cc["gain_limits_simulated"]:  # just inside the limit decays, just outside grows
+        grows = d["diverged_at"] is not None or d["tail_over_initial"] > 1.0
+        assert grows == (d["factor"] > 1.0), d
 
 
 if __name__ == "__main__":

@@ -306,3 +306,29 @@ def test_operating_point_validation():
         M.OperatingPoint(0.5, 0.0, 0.0)
     with pytest.raises(ValueError, match="where"):
         M.operating_point(scn.load(scn.builtin("sinusoid")), "median")
+
+
+def test_gain_limits_equal_jurys_closed_forms_on_a_straight_line():
+    """w_r = 0, Kdv = 0: Jury's conditions (jury_v_loop_stable) bound Kpv by
+    min(2/dt, (4 - dt^2 Kiv)/(2 dt)) and Kiv by (4 - 2 dt Kpv)/dt^2."""
+    op = OPS[0]
+    Kpv, Kiv = M.PID_GAINS[:2]
+    assert M.stable_gain_interval(op, 0)[1] == pytest.approx(
+        min(2 / DT, (4 - DT * DT * Kiv) / (2 * DT)), rel=1e-10
+    )
+    assert M.stable_gain_interval(op, 1)[1] == pytest.approx((4 - 2 * DT * Kpv) / DT**2, rel=1e-10)
+    lo, hi = M.stable_gain_interval(op, 3)
+    # The continuous-time Routh bound Kpw^2 v_r + Kpw Kiw - Kiw v_r > 0, to O(dt).
+    Kiw = M.PID_GAINS[4]
+    routh = (-Kiw + math.sqrt(Kiw**2 + 4 * op.v_r**2 * Kiw)) / (2 * op.v_r)
+    assert lo == pytest.approx(routh, rel=0.05)
+    assert 1.9 / DT < hi < 2 / DT
+
+
+def test_simulated_loop_crosses_the_derivative_gain_limit_where_the_eigenvalues_do():
+    op = OPS[0]
+    limit = M.stable_gain_interval(op, 2)[1]  # Kdv
+    inside, outside = M.gain_limit_check(op, 2, limit, steps=1500)
+    assert inside["spectral_radius"] < 1 < outside["spectral_radius"]
+    assert inside["diverged_at"] is None and inside["tail_over_initial"] < 1
+    assert outside["diverged_at"] is not None or outside["tail_over_initial"] > 1

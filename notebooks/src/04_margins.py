@@ -12,6 +12,7 @@ from IPython.display import display
 
 from analysis import margins as M
 from wmr import scenario as scn
+from wmr.controllers.pid import GAIN_NAMES
 from wmr.sim import simulate
 
 
@@ -30,12 +31,13 @@ def fmt(x, nd=1):
     return "inf" if x == float("inf") else ("-inf" if x == float("-inf") else f"{x:.{nd}f}")
 
 
-print(f"{'loop':<8}{'GM [dB]':>9}{'GM low':>9}{'PM [deg]':>10}{'alpha':>7}{'disk GM':>9}{'disk PM':>9}")
+header = ("loop", "GM [dB]", "GM low", "PM [deg]", "alpha", "disk GM", "disk PM")
+print(f"{header[0]:<8}" + "".join(f"{h:>9}" for h in header[1:]))
 for name, loops in (("PID", M.pid_loops(op)), ("BSC", M.backstepping_loops(op))):
     for ch in M.CHANNELS:
         m = M.loop_margins(loops[ch])
         print(f"{name + ' ' + ch:<8}{fmt(m.gain_margin_db):>9}{fmt(m.gain_margin_lower_db):>9}"
-              f"{fmt(m.phase_margin_deg):>10}{m.disk_margin:>7.2f}{fmt(m.disk_gain_margin_db):>9}"
+              f"{fmt(m.phase_margin_deg):>9}{m.disk_margin:>9.2f}{fmt(m.disk_gain_margin_db):>9}"
               f"{fmt(m.disk_phase_margin_deg):>9}")
     z = np.linalg.eigvals(M.closed_loop_matrix(loops["v"]))
     print(f"{name} closed loop: max|z| = {np.max(np.abs(z)):.4f}, "
@@ -81,6 +83,13 @@ print("v-region equals Jury's conditions:",
       bool(np.array_equal(regions[0]["rho"] < 1, M.jury_v_loop_stable(P, I, op.dt))))
 show(M.stability_region_figure(regions))
 # %% [md]
+# Each gain alone, the others at their defaults: the interval keeping the loop stable. The
+# derivative gains reach the limit below the SGD clamp `Kd ≤ 1` of the adaptive controllers.
+# %%
+for i, name in enumerate(GAIN_NAMES):
+    lo, hi = M.stable_gain_interval(op, i)
+    print(f"{name}: stable for {lo:.3f} < {name} < {hi:.3f}")
+# %% [md]
 # ## Margins along a run as the SGD gains adapt (sinusoid, seed 0)
 #
 # Frozen-time analysis: at every 100th step the loop is relinearised at the local `(v_r, w_r)`
@@ -89,8 +98,9 @@ show(M.stability_region_figure(regions))
 along = {"sinusoid": {name: M.margins_along_run(simulate(sc, name, seed=0), every=100)
                       for name in ("pid", "adaptive-pid", "iapid-nn-dekf")}}
 for name, rec in along["sinusoid"].items():
-    print(f"{name:<14} min upper GM v / w: {rec['v_gm_db'].min():.0f} / {rec['w_gm_db'].min():.0f} dB,"
-          f" closed loop stable throughout: {bool(np.all(rec['rho'] < 1))}")
+    gm_v, gm_w = rec["v_gm_db"].min(), rec["w_gm_db"].min()
+    print(f"{name:<14} min upper GM v / w: {gm_v:.0f} / {gm_w:.0f} dB, "
+          f"closed loop stable throughout: {bool(np.all(rec['rho'] < 1))}")
 show(M.along_runs_figure(along))
 # %% [md]
 # ## The printed rotation of eqs. (4)/(6) (errata E3)
