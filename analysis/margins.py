@@ -17,8 +17,9 @@ Loops.  Plant and controller are python-control discrete systems at ``dt``, join
 ``control.interconnect``.  The MIMO loop is analysed **one loop at a time**: broken at the plant
 input ``v`` with the ``w`` loop closed (``L_v``), and at ``w`` with ``v`` closed (``L_w``), in the
 negative-feedback convention (closed loop ``1 + L``).  Loop-at-a-time margins ignore simultaneous
-perturbations of both channels (Seiler, Packard & Gahinet, "An introduction to disk margins",
-IEEE CSM 40(5):78-95, 2020, §"MIMO"), which is what is reported here.
+perturbations of both channels (multiloop disk margins would include them: Seiler, Packard &
+Gahinet, "An introduction to disk margins", IEEE Control Systems Magazine 40(5):78-95, 2020);
+only loop-at-a-time margins are reported here.
 
 Margins, per loop ``L`` (SISO, discrete, evaluated on the unit circle ``z = exp(j w dt)``,
 ``0 < w <= pi/dt``):
@@ -28,10 +29,11 @@ Margins, per loop ``L`` (SISO, discrete, evaluated on the unit circle ``z = exp(
   holds two integrations of the plant and one of the PID, so it is conditionally stable) is
   ``gain_margin_lower_db`` (``"-inf"`` when none);
 - classical phase margin: ``180 deg + arg L`` at ``|L| = 1``;
-- the balanced (skew 0) disk margin ``alpha = 1 / max_w |S - T|/2 = 1 / max_w |S - 1/2|`` with
-  ``S = 1/(1 + L)``, ``T = L/(1 + L)`` (Seiler et al. 2020, eqs. for sigma = 0), from
-  ``control.disk_margins``; its disk gain margin ``(1 + alpha/2)/(1 - alpha/2)`` and phase margin
-  ``2 atan(alpha/2)``.
+- the balanced (skew ``sigma = 0``) disk margin ``alpha = 1 / max_w |(S - T)/2| =
+  1 / max_w |S - 1/2|`` with ``S = 1/(1 + L)``, ``T = L/(1 + L) = 1 - S`` (Seiler et al. 2020),
+  from ``control.disk_margins``: the loop stays stable for every complex gain
+  ``(1 + alpha d/2)/(1 - alpha d/2)``, ``|d| < 1``; its disk gain margin is
+  ``(1 + alpha/2)/(1 - alpha/2)`` and its disk phase margin ``2 atan(alpha/2)``.
 
 The classical margins are found on the exact state-space frequency response (dense grid, then
 root refinement), not with ``control.stability_margins``: in python-control 0.10.2 its
@@ -51,7 +53,9 @@ Independent cross-checks (reported in ``margins.json``):
 - disk margins below the classical ones;
 - backstepping: ``eig(A_d)`` vs ``exp(eig(A) dt)`` of the continuous Jacobian, ``O(dt^2)``;
 - eigenvalues vs the simulator: the nonlinear loop (``wmr.sim.simulate``, no noise) started at a
-  small error follows the linear model, and its error decays at the slowest ``|z|``.
+  small error follows the linear model, and its error decays at the slowest ``|z|``;
+- the stability region and the stable interval of each gain vs Jury's closed-form conditions,
+  and the simulated loop just inside / just outside the limits of ``Kdv``, ``Kdw``, ``Kpv``.
 
 Also: the stability region in PID-gain space (figure), the margins along runs as the SGD gains
 adapt (frozen-time analysis at the local ``(v_r, w_r)``; figure), and the printed rotation of
@@ -66,7 +70,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -101,6 +104,7 @@ __all__ = [
     "LoopMargins",
     "loop_margins",
     "eigen_margins",
+    "analyse_loops",
     "pid_closed_loop_matrix",
     "pid_equilibrium",
     "jury_v_loop_stable",
@@ -443,9 +447,7 @@ def loop_margins(L: ct.StateSpace, *, python_control: bool = True, n_grid: int =
         dm, dgm, dpm = ct.disk_margins(L, np.sort(np.append(w, w_dm)))
         dm, dgm, dpm = float(dm), float(dgm), float(dpm)
         mag_pc, ph_pc = np.abs(H), np.degrees(np.unwrap(np.angle(H)))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # FRD interpolation warnings are not ours to show
-            sm = ct.stability_margins((mag_pc, ph_pc, w))
+        sm = ct.stability_margins((mag_pc, ph_pc, w))
         pc = {"stability_margins_gm_db": 20 * math.log10(sm[0]) if sm[0] > 0 else -math.inf,
               "stability_margins_pm_deg": float(sm[1]),
               "stability_margins_wgc_rad_s": float(sm[4])}  # fmt: skip
