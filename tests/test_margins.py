@@ -325,10 +325,11 @@ def test_gain_limits_equal_jurys_closed_forms_on_a_straight_line():
     assert 1.9 / DT < hi < 2 / DT
 
 
-def test_simulated_loop_crosses_the_derivative_gain_limit_where_the_eigenvalues_do():
+@pytest.mark.parametrize("index", [2, 5], ids=["Kdv", "Kdw"])
+def test_simulated_loop_crosses_the_derivative_gain_limit_where_the_eigenvalues_do(index):
     op = OPS[0]
-    limit = M.stable_gain_interval(op, 2)[1]  # Kdv
-    inside, outside = M.gain_limit_check(op, 2, limit, steps=1500)
+    limit = M.stable_gain_interval(op, index)[1]
+    inside, outside = M.gain_limit_check(op, index, limit, steps=1500)
     assert inside["spectral_radius"] < 1 < outside["spectral_radius"]
     assert inside["diverged_at"] is None and inside["tail_over_initial"] < 1
-    assert outside["diverged_at"] is not None or outside["tail_over_initial"] > 1
+    assert outside["diverged_at"] is not None or outside["peak_over_initial"] > 10
