@@ -267,6 +267,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``wmr`` command; returns the exit code."""
+    import matplotlib
+
+    matplotlib.use("Agg")  # the command line writes figures to files; no display is needed
     try:
         args = build_parser().parse_args(argv)
         return args.func(args)

@@ -4,14 +4,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
 
-matplotlib.use("Agg")  # files only; no display needed
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from wmr.kinematics import rotation  # noqa: E402
-from wmr.metrics import wrap  # noqa: E402
+from wmr.kinematics import rotation
+from wmr.metrics import wrap
 
 __all__ = ["COLORS", "LABELS", "robot_frame_errors", "tracking_figure"]
 

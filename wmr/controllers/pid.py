@@ -90,8 +90,10 @@ class Settings:
         Cost weights of eq. (8); not in the paper, 1 each (``alpha2`` has no effect with the exact
         Jacobian: notes §4.3).
     gain_min, gain_max : tuple of float
-        Clamp of each gain during adaptation (errata E5d).  Not in the paper.  ``Kd <= 1``: noise
-        on the measured pose drives the derivative gains up (DESIGN §5).
+        Clamp of each gain during adaptation (errata E5d).  Not in the paper.  ``Kd <= 0.5``: noise
+        on the measured pose drives the derivative gains up (DESIGN §5), and the linearised loop
+        at the default gains is unstable beyond ``Kdv ~ 0.98``, ``Kdw ~ 0.95``
+        (``analysis/margins.py``); 0.5 keeps a factor of ~2 of margin.
     feed_forward : bool
         Add ``(v_r cos e3, w_r)`` to eq. 7 (not in the paper).
     printed_rotation : bool
@@ -104,7 +106,7 @@ class Settings:
     mu: tuple[float, ...] = (0.9, 0.9, 0.9, 0.9, 0.9, 0.9)
     alpha: tuple[float, ...] = (1.0, 1.0, 1.0)
     gain_min: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    gain_max: tuple[float, ...] = (50.0, 50.0, 1.0, 50.0, 50.0, 1.0)
+    gain_max: tuple[float, ...] = (50.0, 50.0, 0.5, 50.0, 50.0, 0.5)
     feed_forward: bool = False
     printed_rotation: bool = False
     adapt: bool = True
