@@ -17,8 +17,6 @@ HERE = Path(__file__).resolve().parent
 SETUP = """\
 # NBVAL_IGNORE_OUTPUT
 import numpy as np
-import matplotlib
-matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 %matplotlib inline
 np.set_printoptions(precision=4, suppress=True)
