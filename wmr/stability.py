@@ -55,6 +55,7 @@ __all__ = [
     "ineq48_holds",
     "theorem1_bound",
     "chi2_band",
+    "random_walk_consistency",
     "CONSTANT_NAMES",
 ]
 
@@ -165,11 +166,12 @@ def contraction_direct(M: np.ndarray, P_k: np.ndarray, P_next: np.ndarray) -> fl
     Lk = np.linalg.cholesky(_sym(P_k))
     Ln = np.linalg.cholesky(_sym(P_next))
     C = sla.solve_triangular(Ln, M @ Lk, lower=True)
-    return float(np.linalg.norm(C, 2) ** 2)
+    return float(np.linalg.eigvalsh(C.T @ C)[-1])
 
 
 def kalman_contraction(P_prior: np.ndarray, H: np.ndarray, R: np.ndarray, Q: np.ndarray,
-                       A: np.ndarray | None = None, K: np.ndarray | None = None) -> dict:  # fmt: skip
+                       A: np.ndarray | None = None,
+                       K: np.ndarray | None = None) -> dict:  # fmt: skip
     """The contraction of (48) achieved by one exact Kalman step (two-step form).
 
     With ``P = P_{k|k-1}``, ``K`` of eq. (29) (or the one given), ``M = A (I - K H)`` and the
@@ -195,7 +197,7 @@ def kalman_contraction(P_prior: np.ndarray, H: np.ndarray, R: np.ndarray, Q: np.
     return {
         "alpha": 1.0 / (1.0 + y),
         "y": y,
-        "norm_M": float(np.linalg.norm(M, 2)),
+        "norm_M": _norm_identity_minus(K, H) if A is None else float(np.linalg.norm(M, 2)),
         "K": K,
         "P_next": MPMt + G,
     }
@@ -245,6 +247,44 @@ def chi2_band(dof: int, runs: int, level: float = 0.95) -> tuple[float, float]:
     lo = stats.chi2.ppf(0.5 * (1 - level), dof * runs) / runs
     hi = stats.chi2.ppf(0.5 * (1 + level), dof * runs) / runs
     return float(lo), float(hi)
+
+
+def random_walk_consistency(q: float, r: float) -> tuple[float, float]:
+    """Steady-state expected NEES and NIS of a scalar random-walk Kalman filter whose true state
+    has *no* process noise (the pose filter's situation, per axis, when its model is exact).
+
+    Filter model ``x_{k+1} = x_k + w``, ``w ~ N(0, q)``; measurement ``z = x + v``,
+    ``v ~ N(0, r)``.  In units of ``r`` with ``rho = q / r``, the steady posterior variance ``p``
+    solves ``p = (p + rho) / (p + rho + 1)``, i.e. ``p^2 + rho p - rho = 0``, and the gain is
+    ``K = (p + rho)/(p + rho + 1) = p``.  The true error obeys ``e+ = (1 - K) e- + K v`` with
+    ``e-`` the previous ``e+`` (no true process noise), so its variance is ``K / (2 - K)`` and::
+
+        NEES = (K / (2 - K)) / p = 1 / (2 - K),
+        NIS  = (K / (2 - K) + 1) / (p + rho + 1) = 2 (1 - K) / (2 - K).
+
+    Both are below 1 (the value of a consistent filter) for every ``q > 0``.  Returns
+    ``(NEES, NIS)`` per axis.
+    """
+    if not (q >= 0 and r > 0):
+        raise ValueError(f"random_walk_consistency: need q >= 0 and r > 0, got {q}, {r}")
+    rho = q / r
+    K = 0.5 * (-rho + math.sqrt(rho * rho + 4.0 * rho))
+    return 1.0 / (2.0 - K), 2.0 * (1.0 - K) / (2.0 - K)
+
+
+def _norm_identity_minus(K: np.ndarray, H: np.ndarray) -> float:
+    """``||I - K H||_2`` for ``K`` (n, m), ``H`` (m, n) in O(n m^2).
+
+    With ``U`` an orthonormal basis of ``span(H^T, K)`` (``r <= 2m`` columns), ``I - K H`` is the
+    identity on ``U``'s orthogonal complement and maps ``span U`` into itself, so its norm is
+    ``max(1, ||I_r - U^T K H U||)`` (the 1 only when the complement is not empty).
+    """
+    n = K.shape[0]
+    U, sv, _ = np.linalg.svd(np.hstack((H.T, K)), full_matrices=False)
+    U = U[:, sv > sv[0] * n * np.finfo(float).eps]
+    r = U.shape[1]
+    inner = float(np.linalg.norm(np.eye(r) - (U.T @ K) @ (H @ U), 2))
+    return max(1.0, inner) if r < n else inner
 
 
 def _sym(X: np.ndarray) -> np.ndarray:
