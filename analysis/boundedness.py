@@ -32,20 +32,22 @@ generalised eigenvalue with the filter's stored ``P_{k|k}`` is computed as a cro
 Assumption 1's ``P_k`` is therefore the prior, and ``p_min``/``p_max`` are taken over the priors
 of the run (the posteriors' extremes are reported too).
 
-Weight-estimation error.  There is no true weight vector for a network identifying a unicycle
-(83 weights, 3 outputs per step: the weights are not identifiable).  Two documented proxies:
+Weight-estimation error.  There is no true weight vector for a network identifying a unicycle:
+nothing says the network represents the plant exactly, and permutations and sign flips of hidden
+units give the same map, so a "true" theta is not unique.  Two documented proxies:
 ``theta* =`` the weights at the end of a run twice as long (same seed: its first half is this
 run), giving ``||theta_k - theta*||``; and the *function-space* error, the network's prediction
 after each update against the true pose increment (known in simulation).  Theorem 1's bound is
 evaluated with the run's constants and ``mu = max_k E[s_k^T Pi_{k+1} s_k]`` under the filter's
-own noise model (``s_k = w_k - K_k v_k``, ``w ~ N(0, Q)``, ``v ~ N(0, R)``).
+own noise model (``s_k = w_k - A K_k v_k``, E10, with ``w ~ N(0, Q)``, ``v ~ N(0, R)``).
 
 Pose EKF.  Over ``seeds`` runs per scenario: NEES ``(q - q_hat)^T P^-1 (q - q_hat)`` of the
 posterior at every ``t_k`` (true pose known) and NIS of every pose update, averaged over runs, vs
 the two-sided 95 % band of ``chi^2(3 seeds) / seeds``; per time window in the perturbed
 scenario (before, during, after the disturbance).
 
-Run: ``python -m analysis.boundedness --out paper`` (about a minute on 2 cores).
+Run: ``python -m analysis.boundedness --out paper`` (about 1 minute on 2 idle cores, 3 on a
+loaded machine; ``--quick`` instruments every 20th step with 8 seeds).
 """
 
 from __future__ import annotations
@@ -54,7 +56,7 @@ import argparse
 import math
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -85,15 +87,20 @@ __all__ = [
 
 #: The controller studied: the paper's scheme, the only one with a weight filter and the pose EKF.
 CONTROLLER = "iapid-nn-dekf"
-#: Relative tolerance of "alpha equals the E10 closed form 1e-8/(1 + c_bar^2)^2": that form
-#: takes p_max = r_min = 1000 exactly, the run's p_max exceeds p0 by k q (~4e-5 relative).
+#: Relative tolerance of "alpha equals E10's closed form q / (p0 (1 + p0 c_bar^2 / r)^2)": that
+#: form takes p_max = p0, the run's p_max exceeds p0 by at most k q (~5e-6 relative on alpha).
 CLOSED_FORM_RTOL = 1e-3
 #: Relative tolerance when comparing the innovation norm recomputed here with the one the law
 #: stored (same jitted forward pass; the norm is summed in a different order).
 INNOVATION_RTOL = 1e-12
+#: Relative agreement of the Monte-Carlo mean NEES/NIS with the exact-model steady state of
+#: ``wmr.stability.random_walk_consistency`` (MC error ~1 %; heading coupling and the
+#: disturbance move it by ~1 %).
+EXACT_MODEL_RTOL = 0.05
 #: How far the direct generalised eigenvalue (stored P_{k|k}, Cholesky) may differ from the
-#: cancellation-free one before the analysis complains (absolute, on 1 - lambda).
-DIRECT_ATOL = 1e-9
+#: cancellation-free one (absolute, on 1 - lambda): below Lemma 2's alpha (~1e-12), so the
+#: direct computation could not flip the verdict on (48); ~3e-15 is observed.
+DIRECT_ATOL = 1e-13
 
 
 @dataclass
@@ -113,7 +120,6 @@ class Replay:
     P: np.ndarray
     steps: int
     status: tuple[int, int]
-    extra: dict = field(default_factory=dict)
 
     @property
     def diverged(self) -> bool:
@@ -366,12 +372,16 @@ class _Snapshot:
 
 
 def analyse_weight_filter(sc: Scenario, seed: int | None = None, every: int = 1,
-                          controller: str = CONTROLLER) -> tuple[dict, dict]:  # fmt: skip
+                          controller: str = CONTROLLER,
+                          check_simulate: bool = True) -> tuple[dict, dict]:  # fmt: skip
     """Assumption 1, Lemma 2, (48), weight error and Theorem 1 along one run of ``sc``.
 
     Returns ``(summary, series)``: the JSON record of the scenario (weight-filter part) and the
-    per-step arrays for the figure.  Raises ``AssertionError`` if the replay is not bit-for-bit
-    the simulator's run.
+    per-step arrays for the figure (with the replay's end state ``end_q``, ``end_s``,
+    ``steps``).  With ``check_simulate`` the replay is compared with ``wmr.sim.simulate`` here
+    (``AssertionError`` if not bit for bit); :func:`main` does it in the parent process instead
+    (:func:`matches_simulate`), because compiling ``wmr.sim._advance`` concurrently in several
+    workers races on numba's cache index.
     """
     seed = sc.seed if seed is None else seed
     st = sc.settings(controller)
@@ -379,14 +389,11 @@ def analyse_weight_filter(sc: Scenario, seed: int | None = None, every: int = 1,
     ctrl = controllers.get(controller)
     p0, _, W0, _ = ctrl.pack(st, sc, np.random.default_rng(seed_sequences(seed)[1]))
     probe = WeightProbe(n, W0.size, dt, every)
-    tic = time.perf_counter()
     rp = replay(sc, controller, seed, probe=probe)
-    elapsed = time.perf_counter() - tic
-    ref = simulate(sc, controller, seed)
-    names = len(ref.state_names)
-    identical = (rp.steps == len(ref.u) and np.array_equal(ref.q[-1], rp.q)
-                 and np.array_equal(ref.state[-1], rp.s[:names]))  # fmt: skip
-    assert identical, f"{sc.name}: the replay differs from wmr.sim.simulate (seed {seed})"
+    identical = None
+    if check_simulate:
+        identical = matches_simulate(sc, controller, seed, rp.q, rp.s, rp.steps)
+        assert identical, f"{sc.name}: the replay differs from wmr.sim.simulate (seed {seed})"
     assert not rp.diverged, f"{sc.name}: the run diverged at step {rp.status[0]}"
 
     # Proxy theta*: the weights at the end of a run twice as long with the same seed.
@@ -479,10 +486,9 @@ def analyse_weight_filter(sc: Scenario, seed: int | None = None, every: int = 1,
         "weight_error_theorem1_decay_time_s": tb["decay_steps"] * dt,
         "weight_error_theorem1_eps_times_kappa_max": tb["eps_times_kappa"],
         "weight_error_bound_vacuous": bool(bound[-1] >= e0),
-        "replay_equals_simulate": bool(identical),
+        "replay_equals_simulate": identical,
         "long_run_prefix_identical": bool(prefix_identical),
         "innovation_recomputed_max_rel_diff": probe.innovation_mismatch,
-        "replay_seconds": elapsed,
     }
     series = {
         "t": t,
@@ -495,8 +501,20 @@ def analyse_weight_filter(sc: Scenario, seed: int | None = None, every: int = 1,
         "filter_rms": np.sqrt(a["trace"]),
         "bound": bound,
         "pred_error": a["pred_error"],
+        "end_q": rp.q.copy(),
+        "end_s": rp.s.copy(),
+        "steps": rp.steps,
     }
     return summary, series
+
+
+def matches_simulate(sc: Scenario, controller: str, seed: int, q: np.ndarray, s: np.ndarray,
+                     steps: int) -> bool:  # fmt: skip
+    """True when ``wmr.sim.simulate`` ends in exactly the replay's pose ``q`` and state ``s``."""
+    ref = simulate(sc, controller, seed)
+    names = len(ref.state_names)
+    return bool(steps == len(ref.u) and np.array_equal(ref.q[-1], q)
+                and np.array_equal(ref.state[-1], s[:names]))  # fmt: skip
 
 
 def pose_runs(sc: Scenario, seed: int, controller: str = CONTROLLER) -> dict:
@@ -561,7 +579,7 @@ def pose_consistency(sc: Scenario, runs: list[dict]) -> tuple[dict, dict]:
 
 def _job(kind: str, sc: Scenario, seed: int, every: int):
     if kind == "weights":
-        return analyse_weight_filter(sc, seed, every)
+        return analyse_weight_filter(sc, seed, every, check_simulate=False)
     return pose_runs(sc, seed)
 
 
@@ -627,7 +645,11 @@ def _notes(rec: dict, sc: Scenario) -> list[str]:
         f"at the end of the run is {rec['weight_error_theorem1_bound_final']:.3g} (transient gain "
         f"p_max/p_min = {rec['weight_error_theorem1_transient_gain']:.3g}, noise floor "
         f"{rec['weight_error_theorem1_noise_floor']:.3g})"
-        + (": vacuous." if rec["weight_error_bound_vacuous"] else "."),
+        + (": vacuous." if rec["weight_error_bound_vacuous"] else ".")
+        + f" Theorem 1 is moreover local: it needs ||e_0|| <= alpha / (2 p_max kappa_max) = "
+        f"{rec['weight_error_theorem1_eps_times_kappa_max']:.3g} / kappa_max (eq. 57), with "
+        f"kappa_max of Assumption 2 unknown; the initial weight error here is of order "
+        f"{rec['weight_error_initial']:.2g}.",
         f"Pose EKF over {rec['consistency_runs']} seeds: mean NEES {rec['nees_mean']:.3g} "
         f"(NEES of the run average in the 95 % band [{rec['nees_bounds'][0]:.3g}, "
         f"{rec['nees_bounds'][1]:.3g}] at {100 * rec['nees_in_band']:.0f} % of the steps), mean "
@@ -786,6 +808,9 @@ def main(out: str | Path = "paper", seeds: int = 50, quick: bool = False,
     results, figures = {}, []
     for i, (name, sc) in enumerate(scenarios.items()):
         w_sum, w_series = weights[name]
+        w_sum["replay_equals_simulate"] = matches_simulate(
+            sc, CONTROLLER, w_sum["seed"], w_series["end_q"], w_series["end_s"], w_series["steps"]
+        )
         p_sum, p_series = pose_consistency(sc, pose[i * seeds : (i + 1) * seeds])
         rec = {**w_sum, **p_sum}
         rec["notes"] = _notes(rec, sc)
@@ -823,7 +848,12 @@ def main(out: str | Path = "paper", seeds: int = 50, quick: bool = False,
         assert r["innovation_recomputed_max_rel_diff"] < INNOVATION_RTOL, (
             f"{name}: recomputed innovation differs from the law's"
         )
-        assert all(math.isfinite(r[k]) for k in ("nees_mean", "nis_mean"))
+        for key in ("nees", "nis"):
+            got, want = r[f"{key}_mean"], r[f"{key}_predicted_exact_model"]
+            assert abs(got - want) < EXACT_MODEL_RTOL * want, (
+                f"{name}: pose-filter mean {key.upper()} {got:.4g} is not the exact-model "
+                f"steady state {want:.4g}"
+            )
     return results
 
 
