@@ -508,10 +508,25 @@ def analyse_weight_filter(sc: Scenario, seed: int | None = None, every: int = 1,
     return summary, series
 
 
+def simulate_once(sc: Scenario, controller: str, seed: int):
+    """``wmr.sim.simulate``, retried once if numba fails to *save* its cache index.
+
+    Workaround for a defect of ``wmr.sim`` (reported, not fixed here): ``_advance`` is cached
+    (``cache=True``) but takes the controller law as a first-class function, so its cache never
+    hits across processes (each process recompiles it and appends an entry), and saving the index
+    can raise ``ReferenceError: underlying object has vanished`` while pickling stale entries.
+    The compiled kernel is already registered when the save fails, so one retry runs it.
+    """
+    try:
+        return simulate(sc, controller, seed)
+    except ReferenceError:
+        return simulate(sc, controller, seed)
+
+
 def matches_simulate(sc: Scenario, controller: str, seed: int, q: np.ndarray, s: np.ndarray,
                      steps: int) -> bool:  # fmt: skip
     """True when ``wmr.sim.simulate`` ends in exactly the replay's pose ``q`` and state ``s``."""
-    ref = simulate(sc, controller, seed)
+    ref = simulate_once(sc, controller, seed)
     names = len(ref.state_names)
     return bool(steps == len(ref.u) and np.array_equal(ref.q[-1], q)
                 and np.array_equal(ref.state[-1], s[:names]))  # fmt: skip
