@@ -464,6 +464,8 @@ def analyse_weight_filter(sc: Scenario, seed: int | None = None, every: int = 1,
         "final_eig_min": float(ev[0]),
         "final_eig_max": float(ev[-1]),
         "p_max_attained_at_s": float(t[int(np.nanargmax(a["lmax_prior"]))]),
+        "c_bar_attained_at_s": float(t[int(np.nanargmax(a["norm_H"]))]),
+        "norm_H_median": float(np.nanmedian(a["norm_H"])),
         "P_spd_every_step": bool(
             np.all(a["spd"][upd] == 1.0) and np.nanmin(a["lmin_post"]) > 0.0
         ),  # fmt: skip
@@ -629,7 +631,8 @@ def _notes(rec: dict, sc: Scenario) -> list[str]:
     """Plain-language reading of one scenario's numbers (computed, not written by hand)."""
     a = rec["alpha"]
     notes = [
-        f"Lemma 2's alpha = {a:.3g} with the run's constants (c_bar = {rec['c_bar']:.3g}, "
+        f"Lemma 2's alpha = {a:.3g} with the run's constants (c_bar = {rec['c_bar']:.3g} at "
+        f"t = {rec['c_bar_attained_at_s']:.3g} s, median ||H_k|| {rec['norm_H_median']:.3g}, "
         f"p_max = {rec['p_max']:.6g}, q_min = {rec['q_min']:.3g}, r_min = {rec['r_min']:.3g}); "
         f"E10's closed form q/(p0 (1 + p0 c^2/r)^2) = {rec['alpha_closed_form_e10']:.3g} "
         f"(~1e-8/(1+c^2)^2 for the paper's tuning): the guaranteed contraction per step is "
