@@ -52,6 +52,7 @@ loaded machine; ``--quick`` instruments every 20th step with 8 seeds).
 
 from __future__ import annotations
 
+import dataclasses
 import argparse
 import math
 import time
@@ -379,9 +380,8 @@ def analyse_weight_filter(sc: Scenario, seed: int | None = None, every: int = 1,
     Returns ``(summary, series)``: the JSON record of the scenario (weight-filter part) and the
     per-step arrays for the figure (with the replay's end state ``end_q``, ``end_s``,
     ``steps``).  With ``check_simulate`` the replay is compared with ``wmr.sim.simulate`` here
-    (``AssertionError`` if not bit for bit); :func:`main` does it in the parent process instead
-    (:func:`matches_simulate`), because compiling ``wmr.sim._advance`` concurrently in several
-    workers races on numba's cache index.
+    (``AssertionError`` if not bit for bit); :func:`main` does it in the parent process
+    (:func:`matches_simulate`).
     """
     seed = sc.seed if seed is None else seed
     st = sc.settings(controller)
@@ -398,7 +398,7 @@ def analyse_weight_filter(sc: Scenario, seed: int | None = None, every: int = 1,
 
     # Proxy theta*: the weights at the end of a run twice as long with the same seed.
     snap = _Snapshot(n - 1)
-    long = replay(scn.replace(sc, duration=2 * sc.duration), controller, seed, probe=snap)
+    long = replay(dataclasses.replace(sc, duration=2 * sc.duration), controller, seed, probe=snap)
     theta_star = long.W.copy()
     prefix_identical = snap.W is not None and np.array_equal(snap.W, rp.W)
 
@@ -510,25 +510,10 @@ def analyse_weight_filter(sc: Scenario, seed: int | None = None, every: int = 1,
     return summary, series
 
 
-def simulate_once(sc: Scenario, controller: str, seed: int):
-    """``wmr.sim.simulate``, retried once if numba fails to *save* its cache index.
-
-    Workaround for a defect of ``wmr.sim`` (reported, not fixed here): ``_advance`` is cached
-    (``cache=True``) but takes the controller law as a first-class function, so its cache never
-    hits across processes (each process recompiles it and appends an entry), and saving the index
-    can raise ``ReferenceError: underlying object has vanished`` while pickling stale entries.
-    The compiled kernel is already registered when the save fails, so one retry runs it.
-    """
-    try:
-        return simulate(sc, controller, seed)
-    except ReferenceError:
-        return simulate(sc, controller, seed)
-
-
 def matches_simulate(sc: Scenario, controller: str, seed: int, q: np.ndarray, s: np.ndarray,
                      steps: int) -> bool:  # fmt: skip
     """True when ``wmr.sim.simulate`` ends in exactly the replay's pose ``q`` and state ``s``."""
-    ref = simulate_once(sc, controller, seed)
+    ref = simulate(sc, controller, seed)
     names = len(ref.state_names)
     return bool(steps == len(ref.u) and np.array_equal(ref.q[-1], q)
                 and np.array_equal(ref.state[-1], s[:names]))  # fmt: skip

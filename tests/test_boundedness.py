@@ -13,6 +13,7 @@ from analysis import boundedness as bd
 from wmr import scenario as scn
 from wmr import stability as stab
 from wmr.scenario import Disturbance
+from wmr.sim import simulate
 
 #: Round-off on closed-form arithmetic of a few operations.
 EXACT_RTOL = 1e-14
@@ -253,7 +254,7 @@ class _Trace:
 )  # fmt: skip
 def test_replay_equals_simulate_bit_for_bit(name, controller, changes):
     sc = _short(name, **changes)
-    ref = bd.simulate_once(sc, controller, 3)  # simulate, robust to a numba cache defect
+    ref = simulate(sc, controller, 3)
     trace = _Trace()
     rp = bd.replay(sc, controller, 3, probe=trace)
     assert not rp.diverged and rp.steps == sc.n_steps
