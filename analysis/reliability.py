@@ -164,15 +164,22 @@ def fault_injection() -> dict:
     P[2, 2] = -1.0
     res["negative_covariance_diagonal"] = {"repaired": bool(repair_covariance(P, 1e-12)),
                                            "positive_definite_after": bool(np.all(np.linalg.eigvalsh(P) > 0))}  # fmt: skip
-    # 2. huge measurement noise: the run is stopped and reported, the study goes on
+    # 2. a controller whose output overflows: the run stops with a non-finite cause
+    from wmr.controllers import backstepping
+
+    wild = backstepping.Settings(gains=(1e308, 1e308, 1e308))
+    r = simulate(sc, "backstepping", seed=0, settings=wild)
+    res["overflowing_controller"] = {"diverged": r.diverged, "diverged_at": r.diverged_at,
+                                     "cause": r.cause}  # fmt: skip
+    # 3. huge measurement noise: each run is reported (diverged or not), the study goes on
     noisy = dataclasses.replace(sc, noise=scn.Noise((5.0, 5.0, 3.0)), divergence_bound=2.0)
-    rows = run_jobs([Job(noisy, n, 0) for n in controllers.NAMES] + [Job(sc, "backstepping", 0)],
-                    workers=1, progress=False)  # fmt: skip
-    res["huge_noise"] = {r.controller if r.scenario == noisy.name and i < len(controllers.NAMES)
-                         else "control run": {"diverged": r.diverged, "diverged_at": r.diverged_at,
-                                              "cause": r.cause}
-                         for i, r in enumerate(rows)}  # fmt: skip
-    # 3. saturation: commanded inputs never exceed the limits
+    jobs = [Job(noisy, n, 0) for n in controllers.NAMES] + [Job(sc, "backstepping", 0)]
+    rows = run_jobs(jobs, workers=1, progress=False)
+    res["huge_noise"] = {r.controller: {"diverged": r.diverged, "diverged_at": r.diverged_at,
+                                        "cause": r.cause} for r in rows[:-1]}  # fmt: skip
+    res["huge_noise"]["control run"] = {"diverged": rows[-1].diverged,
+                                        "rmse_position": rows[-1].rmse_position}  # fmt: skip
+    # 4. saturation: commanded inputs never exceed the limits
     lim = dataclasses.replace(sc, limits=scn.Limits(0.3, 0.5))
     sat = {}
     for name in controllers.NAMES:

@@ -211,9 +211,13 @@ def _reliability(data: dict) -> list[str]:
               f"- a covariance with a negative diagonal entry: repaired "
               f"{_f(f['negative_covariance_diagonal']['repaired'])}, positive definite after "
               f"{_f(f['negative_covariance_diagonal']['positive_definite_after'])};",
+              f"- a controller whose output overflows (backstepping gains 1e308): diverged at "
+              f"{_f(f['overflowing_controller']['diverged_at'], 2)} s "
+              f"({f['overflowing_controller']['cause']});",
               "- pose noise std (5 m, 5 m, 3 rad) with a 2 m divergence bound: "
-              + "; ".join(f"{_label(k)} diverged at {_f(v['diverged_at'], 2)} s ({v['cause']})"
-                          for k, v in f["huge_noise"].items() if v["diverged"])
+              + "; ".join(f"{_label(k)} " + (f"diverged at {_f(v['diverged_at'], 2)} s ({v['cause']})"
+                          if v["diverged"] else "did not diverge")
+                          for k, v in f["huge_noise"].items() if k != "control run")
               + "; the next run of the same study completed normally.", ""]  # fmt: skip
     return lines
 

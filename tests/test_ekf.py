@@ -9,7 +9,7 @@ from scipy import stats
 from wmr import ekf
 from wmr import kinematics as kin
 
-REL_TOL = 1e-12  # the expanded Joseph form reassociates O(n m) sums: a few ulps of ||P||
+REL_TOL = 1e-12  # the expanded Joseph form sums in another order: a few ulps of ||P||
 
 
 def _spd(rng, n, scale=1.0):
@@ -28,7 +28,7 @@ def test_fast_weight_update_equals_the_literal_joseph_form(n):
         q = rng.uniform(0, 1e-3, size=n)
         R = _spd(rng, 3)
         theta_ref, P_ref = ekf.weight_update_reference(theta, P, H, nu, q, R)
-        ekf.weight_update(theta, P, H, nu, q, R, np.empty((3, n, 3)))
+        ekf.weight_update(theta, P, H, nu, q, R, np.empty((3, 3, n)))
         np.testing.assert_allclose(theta, theta_ref, rtol=REL_TOL, atol=REL_TOL * np.abs(theta_ref).max())
         np.testing.assert_allclose(P, P_ref, atol=REL_TOL * np.abs(P_ref).max())
         np.testing.assert_array_equal(P, P.T)
@@ -44,7 +44,7 @@ def test_weight_filter_equals_a_linear_kalman_filter():
     x_ekf = np.zeros(n)
     P_ekf = 100.0 * np.eye(n)
     x_kf, P_kf = x_ekf.copy(), P_ekf.copy()
-    work = np.empty((3, n, m))
+    work = np.empty((3, m, n))
     for _ in range(steps):
         H = rng.normal(size=(m, n))
         z = H @ theta_true + rng.normal(size=m) * 0.3
@@ -65,7 +65,7 @@ def test_paper_tuning_keeps_P_symmetric_positive_definite():
     P = 1000.0 * np.eye(n)
     theta = np.zeros(n)
     R = 1000.0 * np.eye(3)
-    work = np.empty((3, n, 3))
+    work = np.empty((3, 3, n))
     for _ in range(2000):
         H = rng.normal(size=(3, n)) * rng.uniform(0.01, 1.0)
         ekf.weight_update(theta, P, H, rng.normal(size=3), np.full(n, 1e-5), R, work)
@@ -77,7 +77,7 @@ def test_paper_tuning_keeps_P_symmetric_positive_definite():
 def test_not_positive_definite_innovation_covariance_leaves_the_state_untouched():
     P = np.eye(2)
     x = np.ones(2)
-    nis = ekf.joseph_update(x, P, np.zeros((1, 2)), np.ones(1), -np.eye(1), np.empty((3, 2, 1)))
+    nis = ekf.joseph_update(x, P, np.zeros((1, 2)), np.ones(1), -np.eye(1), np.empty((3, 1, 2)))
     assert np.isnan(nis)
     np.testing.assert_array_equal(x, 1.0)
 

@@ -36,121 +36,179 @@ __all__ = [
 
 
 @njit
-def _cholesky_solve_rows(L, B, X):
-    """Solve ``S X[i] = B[i]`` for every row ``i`` of ``B`` (n, m), with ``S = L L^T`` (m, m)."""
-    m = L.shape[0]
-    y = np.empty(m)
-    for i in range(B.shape[0]):
-        for a in range(m):
-            acc = B[i, a]
-            for b in range(a):
-                acc -= L[a, b] * y[b]
-            y[a] = acc / L[a, a]
-        for a in range(m - 1, -1, -1):
-            acc = y[a]
-            for b in range(a + 1, m):
-                acc -= L[b, a] * X[i, b]
-            X[i, a] = acc / L[a, a]
-
-
-@njit
-def _small_cholesky(S):
-    """Lower Cholesky factor of a small SPD matrix; NaNs if it is not positive definite."""
-    m = S.shape[0]
-    L = np.zeros((m, m))
-    for j in range(m):
-        d = S[j, j]
-        for k in range(j):
-            d -= L[j, k] * L[j, k]
-        L[j, j] = math.sqrt(d) if d > 0.0 else math.nan
-        for i in range(j + 1, m):
-            acc = S[i, j]
-            for k in range(j):
-                acc -= L[i, k] * L[j, k]
-            L[i, j] = acc / L[j, j]
-    return L
-
-
-@njit(fastmath={"reassoc", "contract"})  # lets the O(n^2 m) sums vectorise; ~1e-16 changes
 def joseph_update(x, P, H, innovation, R, work):
-    """Kalman measurement update of ``x`` (n,) and ``P`` (n, n), in place, in O(n^2 m).
+    """Kalman measurement update in Joseph form, O(n^2 m), in place.
 
     Parameters
     ----------
-    x, P : ndarray
-        State and symmetric covariance, updated in place.
+    x : ndarray, shape (n,)
+        Prior state estimate; updated in place to ``x + K innovation``.
+    P : ndarray, shape (n, n)
+        Prior covariance, exactly symmetric (as every function of this module leaves it);
+        overwritten with the posterior covariance, again exactly symmetric.
     H : ndarray, shape (m, n)
-        Measurement Jacobian.
+        Measurement Jacobian at the prior estimate.
     innovation : ndarray, shape (m,)
-        ``z - h(x)`` (angles already wrapped by the caller).
+        Measurement residual ``z - h(x)`` (angles already wrapped by the caller).
     R : ndarray, shape (m, m)
-        Measurement noise covariance.
-    work : ndarray, shape (3, n, m)
-        Scratch space (``P H^T``, the gain ``K`` and ``M``), overwritten.
+        Measurement noise covariance, symmetric positive definite.
+    work : ndarray, shape (3, m, n)
+        Scratch, overwritten: ``work[0] = H P``, ``work[1] = K^T``,
+        ``work[2] = (K S / 2 - P H^T)^T``.
 
     Returns
     -------
     float
-        The normalised innovation squared ``nu^T S^-1 nu`` (NIS); NaN if ``S`` is not positive
-        definite (then nothing is updated).
+        Normalised innovation squared ``NIS = innovation^T S^{-1} innovation`` with
+        ``S = H P H^T + R``; ``nan`` if ``S`` is not numerically positive definite (only possible
+        when ``P`` or ``R`` is not PSD or not finite), in which case ``x`` and ``P`` are left
+        unchanged and the caller must treat the filter as failed.
 
     Notes
     -----
-    With ``M = K S / 2 - P H^T`` the Joseph form is ``P + K M^T + M K^T``: symmetric by
-    construction, 2 m multiply-adds per entry of the upper triangle.
+    Joseph form ``P+ = (I - K H) P (I - K H)^T + K R K^T`` because it keeps ``P`` symmetric PSD
+    under round-off and for any (even suboptimal) gain ``K``; the plain ``(I - K H) P`` does not.
+    For symmetric ``P`` with ``M = P H^T`` (n, m), ``S = H M + R`` and ``K = M S^{-1}`` it expands
+    exactly to::
+
+        P+ = P + C,   C = - K M^T - M K^T + K S K^T,
+
+    a rank-2m correction costing O(n^2 m) instead of the O(n^3) of the literal products.  ``K S``
+    is evaluated, not replaced by ``M`` (which would collapse ``C`` to the plain ``-K M^T`` and
+    lose the Joseph form's first-order insensitivity to errors in ``K``).  The correction is
+    symmetrised, ``(C + C^T)/2 = D K^T + K D^T`` with ``D = K S / 2 - M``; for symmetric ``P``
+    this is ``(P+ + P+^T)/2``.  Each entry ``D_a . K_b + K_a . D_b`` is the same IEEE sum for
+    ``(a, b)`` and ``(b, a)`` (products and a two-term sum commute exactly; no FMA contraction,
+    ``fastmath=False``), so ``P+`` comes out exactly symmetric without a transpose pass.
+    ``S`` is factored by Cholesky (m x m) and ``K`` obtained by triangular solves, no inverse.
+    ``M``, ``K`` and ``D`` are held transposed, (m, n), so every inner loop runs along contiguous
+    memory and vectorises.
     """
     n = x.size
     m = innovation.size
-    PHt = work[0]
-    K = work[1]
-    M = work[2]
-    for i in range(n):
-        for a in range(m):
+    if (P.shape != (n, n) or H.shape != (m, n) or R.shape != (m, m)
+            or work.shape[0] < 3 or work.shape[1] != m or work.shape[2] != n):  # fmt: skip
+        # O(1); without it a wrongly shaped scratch would be written out of bounds
+        raise ValueError("joseph_update: need P (n, n), H (m, n), R (m, m), work (3, m, n)")
+    HP = work[0]
+    Kt = work[1]
+    Dt = work[2]
+    # M^T = H P (= (P H^T)^T for symmetric P): axpys along the contiguous rows of P
+    for r in range(m):
+        out = HP[r]
+        out[:] = 0.0
+        for a in range(n):
+            c = H[r, a]
+            if c != 0.0:  # the network's H is block-sparse in its output layer
+                row = P[a]
+                for b in range(n):
+                    out[b] += c * row[b]
+    S = np.empty((m, m))
+    for r in range(m):
+        for s in range(m):
             acc = 0.0
-            for j in range(n):
-                acc += P[i, j] * H[a, j]
-            PHt[i, a] = acc
-    S = R.copy()
-    for a in range(m):
-        for b in range(m):
-            acc = 0.0
-            for j in range(n):
-                acc += H[a, j] * PHt[j, b]
-            S[a, b] += acc
-    for a in range(m):  # symmetrise S against round-off
-        for b in range(a + 1, m):
-            v = 0.5 * (S[a, b] + S[b, a])
-            S[a, b] = v
-            S[b, a] = v
-    L = _small_cholesky(S)
-    if not math.isfinite(L[m - 1, m - 1]):
-        return math.nan
-    _cholesky_solve_rows(L, PHt, K)  # K = P H^T S^-1
-    nu = np.empty((1, m))
-    nu[0, :] = innovation
-    Sinv_nu = np.empty((1, m))
-    _cholesky_solve_rows(L, nu, Sinv_nu)
-    nis = 0.0
-    for a in range(m):
-        nis += innovation[a] * Sinv_nu[0, a]
-    for i in range(n):
-        acc = 0.0
-        for a in range(m):
-            acc += K[i, a] * innovation[a]
-        x[i] += acc
-        for a in range(m):
-            acc = 0.0
-            for b in range(m):
-                acc += K[i, b] * S[b, a]
-            M[i, a] = 0.5 * acc - PHt[i, a]
-    for i in range(n):
-        for j in range(i, n):
-            acc = P[i, j]
-            for a in range(m):
-                acc += K[i, a] * M[j, a] + M[i, a] * K[j, a]
-            P[i, j] = acc
-            P[j, i] = acc
+            for b in range(n):
+                acc += HP[r, b] * H[s, b]
+            S[r, s] = acc + R[r, s]
+    for r in range(m):
+        for s in range(r):
+            v = 0.5 * (S[r, s] + S[s, r])
+            S[r, s] = v
+            S[s, r] = v
+    L = np.zeros((m, m))
+    if not _cholesky(S, L):
+        return np.nan
+    # K^T = S^{-1} H P, by forward and back substitution with L L^T = S
+    _cholesky_solve_rows(L, HP, Kt)
+    # D^T = (S K^T) / 2 - H P; S K^T equals H P only up to round-off, and that is the point
+    for r in range(m):
+        out = Dt[r]
+        for b in range(n):
+            out[b] = -HP[r, b]
+        for s in range(m):
+            c = 0.5 * S[r, s]
+            Ks = Kt[s]
+            for b in range(n):
+                out[b] += c * Ks[b]
+    nis = _normalised_square(L, innovation)
+    for r in range(m):
+        c = innovation[r]
+        Kr = Kt[r]
+        for b in range(n):
+            x[b] += Kr[b] * c
+    # P += D K^T + K D^T, row by row (full rows vectorise better than upper-triangle ones)
+    for a in range(n):
+        row = P[a]
+        for r in range(m):
+            d_a = Dt[r, a]
+            k_a = Kt[r, a]
+            Kr = Kt[r]
+            Dr = Dt[r]
+            for b in range(n):
+                row[b] += d_a * Kr[b] + k_a * Dr[b]
     return nis
+
+
+@njit
+def _cholesky(A, L):
+    """Write the lower Cholesky factor of ``A`` (lower triangle read) into ``L``.
+
+    Returns False (with ``L`` partly written) if a pivot is not positive or not finite.
+    """
+    n = A.shape[0]
+    for j in range(n):
+        d = A[j, j]
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if not d > 0.0 or not math.isfinite(d):
+            return False
+        ljj = math.sqrt(d)
+        L[j, j] = ljj
+        for i in range(j + 1, n):
+            acc = A[i, j]
+            for k in range(j):
+                acc -= L[i, k] * L[j, k]
+            L[i, j] = acc / ljj
+    return True
+
+
+@njit
+def _cholesky_solve_rows(L, B, X):
+    """``X = (L L^T)^{-1} B`` for ``B`` (m, n), by row-wise forward then back substitution."""
+    m, n = B.shape
+    for r in range(m):
+        for b in range(n):
+            X[r, b] = B[r, b]
+        for s in range(r):
+            c = L[r, s]
+            for b in range(n):
+                X[r, b] -= c * X[s, b]
+        inv = 1.0 / L[r, r]
+        for b in range(n):
+            X[r, b] *= inv
+    for r in range(m - 1, -1, -1):
+        for s in range(r + 1, m):
+            c = L[s, r]
+            for b in range(n):
+                X[r, b] -= c * X[s, b]
+        inv = 1.0 / L[r, r]
+        for b in range(n):
+            X[r, b] *= inv
+
+
+@njit
+def _normalised_square(L, e):
+    """``e^T (L L^T)^{-1} e = |L^{-1} e|^2`` by forward substitution; ``L`` lower (m, m)."""
+    m = e.size
+    y = np.empty(m)
+    out = 0.0
+    for r in range(m):
+        acc = e[r]
+        for s in range(r):
+            acc -= L[r, s] * y[s]
+        y[r] = acc / L[r, r]
+        out += y[r] * y[r]
+    return out
 
 
 @njit
@@ -159,7 +217,7 @@ def weight_update(theta, P, H, innovation, q_diag, R, work):
 
     Predict with ``f = identity``: ``P <- P + diag(q_diag)``; then the Joseph update of
     :func:`joseph_update` with ``H = dz/dtheta`` at the current input and the innovation
-    ``d_k - h(theta, x_k)``.  ``work`` is scratch of shape (3, n, m).  Returns the NIS.
+    ``d_k - h(theta, x_k)``.  ``work`` is scratch of shape (3, m, n).  Returns the NIS.
     """
     for i in range(theta.size):
         P[i, i] += q_diag[i]

@@ -84,7 +84,7 @@ def pack(settings: Settings, scenario, rng):
     p = Params(np.array(settings.gains), settings.printed_rotation,
                INTEGRATORS[scenario.integrator], settings.hidden, np.full(n, settings.q),
                settings.r * np.eye(3), np.zeros((N_OUT, n)), np.zeros((3, n)),
-               np.zeros((3, n, 3)))  # fmt: skip
+               np.zeros((3, 3, n)))  # fmt: skip
     return p, np.zeros(_S_SIZE), W, settings.p0 * np.eye(n)
 
 

@@ -81,7 +81,7 @@ def pack(settings: Settings, scenario, rng):
     base = pid.make_params(settings, 2, INTEGRATORS[scenario.integrator], n_h=settings.hidden,
                             printed_jacobian=settings.printed_jacobian,
                             q_diag=np.full(n, settings.q), R=settings.r * np.eye(N_OUT))  # fmt: skip
-    p = Params(*base, H=np.zeros((N_OUT, n)), work=np.zeros((3, n, N_OUT)))
+    p = Params(*base, H=np.zeros((N_OUT, n)), work=np.zeros((3, N_OUT, n)))
     W = nn.init_weights(rng, N_IN, settings.hidden, N_OUT, settings.output_scale)
     P = settings.p0 * np.eye(n)
     return p, pid.initial_state(settings), W, P
