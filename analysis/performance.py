@@ -41,6 +41,8 @@ as a warning, not raised.  The results are written before the check.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import ctypes
 import dataclasses
 import math
 import os
@@ -480,6 +482,33 @@ def python_control_closed_loop(scenario, controller: str = SUBJECT, seed: int = 
     return system, T, U, X0
 
 
+@contextlib.contextmanager
+def _single_thread_blas():
+    """Limit every loaded OpenBLAS to one thread (the kernel is single-threaded too); yields
+    whether it could.  Threaded BLAS competing with other load made the numpy loop 5-50x slower
+    and erratic on the shared machine."""
+    handles = []
+    try:
+        maps = Path("/proc/self/maps").read_text()
+        paths = sorted({ln.split()[-1] for ln in maps.splitlines() if "openblas" in ln.lower()})
+        for path in paths:
+            lib = ctypes.CDLL(path)
+            for prefix in ("scipy_openblas", "openblas"):
+                for suffix in ("64_", ""):
+                    get = getattr(lib, f"{prefix}_get_num_threads{suffix}", None)
+                    put = getattr(lib, f"{prefix}_set_num_threads{suffix}", None)
+                    if get is not None and put is not None:
+                        handles.append((put, get()))
+                        put(1)
+    except OSError:
+        pass
+    try:
+        yield bool(handles)
+    finally:
+        for put, n in handles:
+            put(n)
+
+
 def _time_python_control(scenario, controller, implementation, repeats):
     """(seconds per step (min, median), max |q - q_simulate|) of the python-control loop."""
     import control as ct
@@ -719,7 +748,9 @@ def main(out: str | Path = "paper", quick: bool = False, workers: int | None = N
     short = dataclasses.replace(lem, duration=pc_steps * lem.dt)
     pc = {}
     for controller, impl in ((SUBJECT, "jit"), (SUBJECT, "numpy"), ("backstepping", "jit")):
-        t_min, t_med, err = _time_python_control(short, controller, impl, 2 if quick else 3)
+        with _single_thread_blas() as limited:
+            t_min, t_med, err = _time_python_control(short, controller, impl, 3 if quick else 5)
+        res["python_control_blas_single_thread"] = limited
         pc[f"{controller}/{impl}"] = {
             "us_per_step": t_min * us, "us_per_step_median": t_med * us, "steps": pc_steps,
             "max_abs_q_difference": err, "ratio": t_min * us / res["us_per_step"][controller],
@@ -807,8 +838,9 @@ def _notes(res) -> list[str]:
         "and reference as simulate; updfcn copies the state and calls the library's jitted "
         "pieces, so both sides do the same arithmetic (max_abs_q_difference checks the "
         "trajectories agree).  The 'numpy' variant writes the law and pose filter in plain numpy "
-        "with the textbook dense Joseph update (O(n^3)); its time depends strongly on OpenBLAS "
-        "threads competing with other load on the machine.",
+        "with the textbook dense Joseph update (O(n^3)).  OpenBLAS is limited to one thread while "
+        "the python-control loops run (python_control_blas_single_thread), like the kernel: "
+        "threaded BLAS competing with other load made the numpy loop 5-50x slower and erratic.",
         "Monte-Carlo: run_jobs with worker processes (fork: workers inherit the parent's compiled "
         "kernels, the parent is warm here); rows compared with the serial path field by field.",
         "peak_rss_children_mb is the largest child's high-water mark, which counts the pages it "
