@@ -1,0 +1,379 @@
+"""The fast path (one numba kernel) against a straightforward reference, and the benchmark's pieces.
+
+The reference below is the closed loop of ``wmr.sim`` written out in plain Python/numpy, from the
+equations (docs/conventions.md, the module docstrings), without any of the library's jitted
+functions: noise drawn as ``wmr.sim`` draws it, the exact-arc plant, the pose EKF and the weight
+EKF as dense textbook Joseph updates (``np.linalg.solve``, O(n^3)), the network and its Jacobians
+as numpy matrices, the SGD gain step and the PID of eq. (7).  It reads only settings and the
+reference samples (``wmr.references.sample``, plain numpy) from the library.
+
+No timing is asserted here: timings belong to ``analysis/performance.py``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose
+
+from wmr import scenario as scn
+from wmr.references import sample
+from wmr.scenario import Disturbance, Limits
+from wmr.sim import simulate
+
+STEPS = 200
+#: Agreement asked by issue 6.  Differences come from the order of floating-point operations:
+#: the library's O(n^2 m) Joseph expansion (with fastmath reassociation) against the dense
+#: textbook products here.
+RTOL = 1e-12
+ATOL = 1e-12
+
+
+# ---------------------------------------------------------------------------------------------
+# reference closed loop
+
+
+def wrap(a: float) -> float:
+    r = math.atan2(math.sin(a), math.cos(a))
+    return math.pi if r == -math.pi else r
+
+
+def sinc_and_derivative(a: float) -> tuple[float, float]:
+    if abs(a) < 1e-4:
+        return 1.0 - a * a / 6.0 + a**4 / 120.0, -a / 3.0 + a**3 / 30.0
+    s = math.sin(a) / a
+    return s, (math.cos(a) - s) / a
+
+
+def plant_step(q, u, dt):
+    """Exact arc under zero-order hold and its Jacobians ``F = dq+/dq``, ``G = dq+/du``."""
+    v, w = u
+    a = 0.5 * w * dt
+    s, ds = sinc_and_derivative(a)
+    phi = q[2] + a
+    c, sn = math.cos(phi), math.sin(phi)
+    q_next = np.array([q[0] + v * dt * s * c, q[1] + v * dt * s * sn, q[2] + w * dt])
+    F = np.eye(3)
+    F[0, 2], F[1, 2] = -v * dt * s * sn, v * dt * s * c
+    G = np.array([[dt * s * c, 0.5 * v * dt * dt * (ds * c - s * sn)],
+                  [dt * s * sn, 0.5 * v * dt * dt * (ds * sn + s * c)],
+                  [0.0, dt]])  # fmt: skip
+    return q_next, F, G
+
+
+def rotation(theta: float) -> np.ndarray:
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def tracking_error(q_hat, ref) -> np.ndarray:
+    e = rotation(q_hat[2]) @ (ref[:3] - q_hat)
+    e[2] = wrap(ref[2] - q_hat[2])
+    return e
+
+
+def joseph(x, P, H, nu, R):
+    """Dense textbook Kalman update with the Joseph covariance form."""
+    S = H @ P @ H.T + R
+    K = np.linalg.solve(S, H @ P).T  # P H^T S^-1 (P and S symmetric)
+    IKH = np.eye(x.size) - K @ H
+    return x + K @ nu, IKH @ P @ IKH.T + K @ R @ K.T
+
+
+class Network:
+    """One hidden tanh layer, linear outputs; flat weights ``[V, b_v, W, b_w]`` (row-major)."""
+
+    def __init__(self, n_in: int, n_h: int, n_out: int):
+        self.n_in, self.n_h, self.n_out = n_in, n_h, n_out
+        self.n = n_h * n_in + n_h + n_out * n_h + n_out
+
+    def init(self, rng, output_scale: float) -> np.ndarray:
+        V = rng.standard_normal((self.n_h, self.n_in)) * math.sqrt(2.0 / (self.n_in + self.n_h))
+        W = rng.standard_normal((self.n_out, self.n_h)) * output_scale / math.sqrt(self.n_h)
+        return np.concatenate((V.ravel(), np.zeros(self.n_h), W.ravel(), np.zeros(self.n_out)))
+
+    def split(self, theta):
+        i1 = self.n_h * self.n_in
+        i2 = i1 + self.n_h
+        i3 = i2 + self.n_out * self.n_h
+        return (theta[:i1].reshape(self.n_h, self.n_in), theta[i1:i2],
+                theta[i2:i3].reshape(self.n_out, self.n_h), theta[i3:])  # fmt: skip
+
+    def forward(self, theta, x):
+        V, b_v, W, b_w = self.split(theta)
+        h = np.tanh(V @ x + b_v)
+        return W @ h + b_w, h
+
+    def input_jacobian(self, theta, x):
+        V, _, W, _ = self.split(theta)
+        _, h = self.forward(theta, x)
+        return W @ np.diag(1.0 - h * h) @ V
+
+    def weight_jacobian(self, theta, x):
+        """``dz/dtheta`` built entry by entry from its definition."""
+        V, _, W, _ = self.split(theta)
+        _, h = self.forward(theta, x)
+        H = np.zeros((self.n_out, self.n))
+        i1 = self.n_h * self.n_in
+        i2 = i1 + self.n_h
+        i3 = i2 + self.n_out * self.n_h
+        for i in range(self.n_out):
+            for j in range(self.n_h):
+                d = W[i, j] * (1.0 - h[j] ** 2)
+                for k in range(self.n_in):
+                    H[i, j * self.n_in + k] = d * x[k]
+                H[i, i1 + j] = d
+                H[i, i2 + i * self.n_h + j] = h[j]
+            H[i, i3 + i] = 1.0
+        return H
+
+
+class PID:
+    """Eq. (7) with the SGD gain step of eqs. (8)-(17) (Jacobian supplied by the caller)."""
+
+    def __init__(self, st):
+        self.st = st
+        self.K = np.array(st.gains, dtype=float)
+        self.J = np.zeros((3, 2))
+        self.integral = np.zeros(2)
+        self.prev = np.zeros(2)
+        self.phi = np.zeros(6)
+        self.started = False
+
+    def sgd(self, J, e, theta):
+        te = rotation(theta).T @ (np.array(self.st.alpha) * e)
+        g = J.T @ te  # (dF/du_v, dF/du_w) up to sign
+        for i in range(6):
+            k = self.K[i] + self.st.mu[i] * g[0 if i < 3 else 1] * self.phi[i]
+            self.K[i] = min(max(k, self.st.gain_min[i]), self.st.gain_max[i])
+
+    def output(self, e, ref, dt):
+        x, sw = e[0], e[2] + e[1]
+        self.integral += dt * np.array([x, sw])
+        d = (np.array([x, sw]) - self.prev) / dt if self.started else np.zeros(2)
+        self.prev = np.array([x, sw])
+        self.phi = np.array([x, self.integral[0], d[0], sw, self.integral[1], d[1]])
+        u = np.array([self.K[:3] @ self.phi[:3], self.K[3:] @ self.phi[3:]])
+        if self.st.feed_forward:
+            u += (ref[3] * math.cos(e[2]), ref[4])
+        return u
+
+
+class IapidReference:
+    """IAPID-NN-DEKF: identify (weight EKF), Jacobian of the network, SGD, eq. (7)."""
+
+    uses_estimator = True
+
+    def __init__(self, st, rng):
+        self.st, self.pid = st, PID(st)
+        self.net = Network(4, st.hidden, 3)
+        self.theta = self.net.init(rng, st.output_scale)
+        self.P = st.p0 * np.eye(self.net.n)
+        self.nn_error = 0.0
+        self.repairs = 0.0
+
+    def __call__(self, q_hat, ref, dt):
+        e = tracking_error(q_hat, ref)
+        pid = self.pid
+        if pid.started:
+            x = np.array([self.u_prev[0], self.u_prev[1], math.cos(self.q_prev[2]),
+                          math.sin(self.q_prev[2])])  # fmt: skip
+            z, _ = self.net.forward(self.theta, x)
+            d = (q_hat - self.q_prev) / dt
+            d[2] = wrap(q_hat[2] - self.q_prev[2]) / dt
+            nu = d - z
+            self.nn_error = math.sqrt(nu @ nu)
+            H = self.net.weight_jacobian(self.theta, x)
+            P = self.P + self.st.q * np.eye(self.net.n)
+            self.theta, self.P = joseph(self.theta, P, H, nu, self.st.r * np.eye(3))
+            if np.any(~(np.diag(self.P) > 1e-12)):
+                self.P = 0.5 * (self.P + self.P.T)
+                np.fill_diagonal(self.P, np.maximum(np.diag(self.P), 1e-12))
+                self.repairs += 1.0
+            J = dt * self.net.input_jacobian(self.theta, x)[:, :2]
+            pid.J = J
+            pid.sgd(J, e, q_hat[2])
+        u = pid.output(e, ref, dt)
+        self.u_prev, self.q_prev, pid.started = u.copy(), q_hat.copy(), True
+        return u
+
+    def logged(self):
+        return np.concatenate((self.pid.K, self.pid.J.ravel(), [self.nn_error, self.repairs]))
+
+
+class AdaptivePidReference:
+    """APID: the SGD step with the exact ZOH Jacobian of the plant at the previous (q, u)."""
+
+    uses_estimator = False
+
+    def __init__(self, st, rng):
+        self.st, self.pid = st, PID(st)
+
+    def __call__(self, q_hat, ref, dt):
+        e = tracking_error(q_hat, ref)
+        pid = self.pid
+        if pid.started:
+            _, _, J = plant_step(self.q_prev, self.u_prev, dt)
+            pid.J = J
+            pid.sgd(J, e, q_hat[2])
+        u = pid.output(e, ref, dt)
+        self.u_prev, self.q_prev, pid.started = u.copy(), q_hat.copy(), True
+        return u
+
+    def logged(self):
+        return np.concatenate((self.pid.K, self.pid.J.ravel()))
+
+
+class BacksteppingReference:
+    """Kanayama's law."""
+
+    uses_estimator = False
+
+    def __init__(self, st, rng):
+        self.k1, self.k2, self.k3 = st.gains
+
+    def __call__(self, q_hat, ref, dt):
+        e = tracking_error(q_hat, ref)
+        v_r, w_r = ref[3], ref[4]
+        return np.array([v_r * math.cos(e[2]) + self.k1 * e[0],
+                         w_r + v_r * (self.k2 * e[1] + self.k3 * math.sin(e[2]))])  # fmt: skip
+
+    def logged(self):
+        return np.zeros(0)
+
+
+REFERENCES = {"iapid-nn-dekf": IapidReference, "adaptive-pid": AdaptivePidReference,
+              "backstepping": BacksteppingReference}  # fmt: skip
+
+
+def reference_run(sc, controller: str, seed: int) -> dict:
+    """The closed loop of ``wmr.sim`` (DESIGN §3.1) in plain Python, for ``sc.n_steps`` steps."""
+    n, dt = sc.n_steps, sc.dt
+    noise_ss, init_ss = np.random.SeedSequence(seed).spawn(2)  # the two streams of a run
+    std = np.array(sc.noise.pose_std)
+    noise = np.random.default_rng(noise_ss).standard_normal((n, 3)) * std  # one chunk (n <= 8192)
+    law = REFERENCES[controller](sc.settings(controller), np.random.default_rng(init_ss))
+    ref = sample(sc.reference.kind, sc.reference.params, dt, n + 1)
+    est = sc.estimator
+    use_ekf = est.pose_source == "filtered" or (est.pose_source == "paper" and law.uses_estimator)
+    Qp = np.diag(np.square(est.process_std))
+    Rp = np.diag(np.square(np.maximum(std, est.min_measurement_std)))
+    q = np.array(sc.initial_pose, dtype=float)
+    q_hat, Pq = np.zeros(3), Rp.copy()
+    qs, q_hats, us, states = [q.copy()], [], [], []
+    for k in range(n):
+        z = q + noise[k]
+        if not use_ekf or k == 0:
+            q_hat, Pq = z.copy(), Rp.copy()
+        else:
+            nu = z - q_hat
+            nu[2] = wrap(nu[2])
+            q_hat, Pq = joseph(q_hat, Pq, np.eye(3), nu, Rp)
+        u = law(q_hat, ref[k], dt)
+        u = np.clip(u, (-sc.limits.v_max, -sc.limits.w_max), (sc.limits.v_max, sc.limits.w_max))
+        q_hats.append(q_hat.copy())
+        us.append(u.copy())
+        states.append(law.logged())
+        ua = u.copy()
+        for d in sc.disturbances:
+            if d.start <= k * dt < d.stop:
+                ua += d.velocity
+        q, _, _ = plant_step(q, ua, dt)
+        if use_ekf:
+            q_hat, F, _ = plant_step(q_hat, u, dt)
+            Pq = F @ Pq @ F.T + Qp
+        qs.append(q.copy())
+    q_arr = np.array(qs)
+    err = ref[:, :3] - q_arr
+    err[:, 2] = [wrap(a) for a in err[:, 2]]
+    rmse = {"x": math.sqrt(np.mean(err[:, 0] ** 2)), "y": math.sqrt(np.mean(err[:, 1] ** 2)),
+            "theta": math.sqrt(np.mean(err[:, 2] ** 2)),
+            "position": math.sqrt(np.mean(err[:, 0] ** 2 + err[:, 1] ** 2))}  # fmt: skip
+    return {"q": q_arr, "q_hat": np.array(q_hats), "u": np.array(us), "state": np.array(states),
+            "ref": ref, "rmse": rmse}  # fmt: skip
+
+
+# ---------------------------------------------------------------------------------------------
+# tests
+
+
+def short_lemniscate():
+    return dataclasses.replace(scn.load(scn.builtin("lemniscate")), duration=STEPS * 0.01)
+
+
+def short_perturbed():
+    """The perturbed sinusoid cut to STEPS steps, with the perturbation and saturation inside."""
+    sc = scn.load(scn.builtin("sinusoid-perturbed"))
+    return dataclasses.replace(sc, duration=STEPS * sc.dt,
+                               disturbances=(Disturbance(0.5, 1.2, (0.1, 0.3)),),
+                               limits=Limits(v_max=0.6, w_max=1.5))  # fmt: skip
+
+
+SCENARIOS = {"lemniscate": short_lemniscate, "perturbed-saturated": short_perturbed}
+
+
+def max_rel_error(a, b) -> float:
+    if a.size == 0:
+        return 0.0
+    return float(np.max(np.abs(a - b) / np.maximum(np.abs(b), ATOL / RTOL)))
+
+
+@pytest.mark.parametrize("scenario", list(SCENARIOS))
+@pytest.mark.parametrize("controller", list(REFERENCES))
+def test_fast_path_matches_reference(controller, scenario):
+    sc = SCENARIOS[scenario]()
+    fast = simulate(sc, controller, 3, keep_trajectory=True)
+    ref = reference_run(sc, controller, 3)
+    assert not fast.diverged
+    assert fast.q.shape == (STEPS + 1, 3)
+    for name in ("q", "q_hat", "u", "state", "ref"):
+        got, want = getattr(fast, name), ref[name]
+        assert got.shape == want.shape, name
+        msg = f"{name}: max rel error {max_rel_error(got, want):.2e}"
+        assert_allclose(got, want, rtol=RTOL, atol=ATOL, err_msg=msg)
+    for key, value in ref["rmse"].items():
+        assert fast.rmse[key] == pytest.approx(value, rel=RTOL, abs=ATOL), key
+    if scenario == "perturbed-saturated":  # the case exercises the limits
+        assert np.any(np.abs(fast.u) == [0.6, 1.5])
+
+
+def test_iapid_adapts_in_the_compared_window():
+    """The comparison is not vacuous: gains move and the network error is non-zero."""
+    fast = simulate(short_lemniscate(), "iapid-nn-dekf", 3, keep_trajectory=True)
+    gains = fast.state[:, :6]
+    assert np.ptp(gains, axis=0).max() > 1e-3
+    assert fast.state[1:, 12].min() > 0.0  # nn_error
+
+
+def test_floor_update_is_a_correct_ekf_update():
+    from analysis.performance import floor_update
+
+    rng = np.random.default_rng(5)
+    for n, m, specialise in ((83, 3, True), (83, 3, False), (20, 2, True)):
+        A = rng.standard_normal((n, n))
+        P0 = A @ A.T / n + np.eye(n)
+        H = rng.standard_normal((m, n))
+        nu, q, R = rng.standard_normal(m), np.full(n, 1e-3), 2.0 * np.eye(m)
+        theta, P = np.zeros(n), P0.copy()
+        floor_update(theta, P, H, nu, q, R, np.zeros((2, m, n)), specialise)
+        Pp = P0 + np.diag(q)
+        S = H @ Pp @ H.T + R
+        K = Pp @ H.T @ np.linalg.inv(S)
+        assert_allclose(theta, K @ nu, rtol=1e-12, atol=1e-14)
+        assert_allclose(P, Pp - K @ H @ Pp, rtol=1e-10, atol=1e-12)
+
+
+@pytest.mark.parametrize("implementation", ["jit", "numpy"])
+def test_python_control_loop_is_the_same_computation(implementation):
+    ct = pytest.importorskip("control")
+    from analysis.performance import python_control_closed_loop
+
+    sc = dataclasses.replace(scn.load(scn.builtin("lemniscate")), duration=0.5)
+    system, T, U, X0 = python_control_closed_loop(sc, "iapid-nn-dekf", 0, implementation)
+    resp = ct.input_output_response(system, T, U, X0)
+    fast = simulate(sc, "iapid-nn-dekf", 0, keep_trajectory=True)
+    assert_allclose(resp.states[:3].T, fast.q[: len(T)], rtol=RTOL, atol=ATOL)
+    assert_allclose(resp.outputs.T, fast.q[: len(T)], rtol=RTOL, atol=ATOL)
