@@ -1,0 +1,71 @@
+"""The generated report: byte-identical to what ``wmr report`` writes from the committed results,
+every linked image exists; an interrupted ``wmr reproduce`` leaves the previous results intact."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import types
+from pathlib import Path
+
+import pytest
+
+from analysis import report
+from wmr import cli
+
+PAPER = Path(__file__).resolve().parents[1] / "paper"
+needs_paper = pytest.mark.skipif(not (PAPER / "results" / "reproduction.json").exists(),
+                                 reason="paper/ not generated yet (make reproduce)")  # fmt: skip
+
+
+@needs_paper
+def test_committed_report_is_what_wmr_report_writes():
+    assert report.build(PAPER) == (PAPER / "report.md").read_text()
+
+
+@needs_paper
+def test_wmr_report_rewrites_a_copy_byte_identically(tmp_path):
+    copy = tmp_path / "paper"
+    shutil.copytree(PAPER, copy)
+    (copy / "report.md").unlink()
+    assert cli.main(["report", "--out", str(copy)]) == 0
+    assert (copy / "report.md").read_bytes() == (PAPER / "report.md").read_bytes()
+
+
+@needs_paper
+def test_every_image_the_report_links_exists_and_there_are_at_least_six():
+    links = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", (PAPER / "report.md").read_text())
+    assert len(set(links)) >= 6
+    assert [x for x in links if not (PAPER / x).is_file()] == []
+
+
+def test_report_without_results_is_a_usage_error(tmp_path, capsys):
+    assert cli.main(["report", "--out", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.startswith("error: ")
+
+
+def test_interrupted_reproduce_keeps_previous_results_and_a_rerun_completes(tmp_path, monkeypatch):
+    out = tmp_path / "paper"
+    (out / "results").mkdir(parents=True)
+    (out / "results" / "rmse.csv").write_text("previous\n")
+
+    def study(fail):
+        def main(stage, **kwargs):
+            (Path(stage) / "results").mkdir(parents=True, exist_ok=True)
+            (Path(stage) / "results" / "rmse.csv").write_text("new\n")
+            if fail:
+                raise KeyboardInterrupt  # the user presses Ctrl-C in the middle of the study
+
+        return types.SimpleNamespace(main=main)
+
+    fake_report = types.SimpleNamespace(main=lambda out: Path(out) / "report.md")
+    argv = ["reproduce", "--out", str(out), "--skip-analyses", "--skip-bench", "--seeds", "1"]
+    monkeypatch.setattr(cli, "_study", lambda name: study(True) if name == "reproduction"
+                        else fake_report)  # fmt: skip
+    assert cli.main(argv) == 130
+    assert (out / "results" / "rmse.csv").read_text() == "previous\n"
+    monkeypatch.setattr(cli, "_study", lambda name: study(False) if name == "reproduction"
+                        else fake_report)  # fmt: skip
+    assert cli.main(argv) == 0
+    assert (out / "results" / "rmse.csv").read_text() == "new\n"
+    assert not (out / ".staging").exists()
