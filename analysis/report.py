@@ -109,7 +109,20 @@ def _reproduction(out: Path, rep: dict) -> list[str]:
                          f"{'reproduced' if same else 'not reproduced'}")  # fmt: skip
         pos = " < ".join(_label(n) for n in ours["position"])
         lines.append(f"- position RMSE (frame-invariant): {pos}")
+        tail = " < ".join(_label(n) for n in ours["tail_position"])
+        lines.append(f"- position RMSE after the transient (t ≥ {rep['transient_s']:g} s): {tail}")
         lines.append("")
+    lines += [f"The full-run RMSE is dominated by the initial pose error (X0 of the paper).  After "
+              f"the transient (t ≥ {rep['transient_s']:g} s), position RMSE [m], mean ± std:", "",
+              "| scenario | " + " | ".join(_label(n) for n in controllers.NAMES) + " |",
+              "|---|" + "---|" * len(controllers.NAMES)]  # fmt: skip
+    for sc, entry in rep["scenarios"].items():
+        cells = []
+        for n in controllers.NAMES:
+            t = entry["runs"].get(n, {}).get("default", {}).get("tail_position")
+            cells.append("—" if not t or t["mean"] is None else f"{t['mean']:.4f} ± {t['std']:.4f}")
+        lines.append(f"| {sc} | " + " | ".join(cells) + " |")
+    lines += [""]
     lines += ["Paired comparisons of the position RMSE (difference A − B per seed; wins = seeds "
               "where A is better; Wilcoxon signed-rank p):", "",
               "| scenario | A vs B | mean diff [m] | std | wins | p |", "|---|---|---|---|---|---|"]

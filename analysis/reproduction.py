@@ -26,6 +26,7 @@ from scipy import stats
 from wmr import controllers
 from wmr import scenario as scn
 from wmr.io import atomic_write_text, save_figure, write_csv, write_json
+from wmr.sim import TRANSIENT
 from wmr.study import ROW_HEADER, Job, Row, run_jobs
 
 __all__ = ["PAPER_RMSE", "VARIANTS", "build_jobs", "summarise", "main"]
@@ -53,6 +54,8 @@ PAPER_RMSE = {
 }
 TABLE_NUMBER = {"lemniscate": 1, "sinusoid": 2, "sinusoid-perturbed": 3}
 AXES = ("x", "y", "theta")
+#: RMSE over t >= wmr.sim.TRANSIENT (the initial pose error left out), per axis and position.
+TAIL = ("tail_x", "tail_y", "tail_theta", "tail_position")
 
 
 def _with(settings, **changes):
@@ -150,6 +153,8 @@ def _table(rows: list[Row]) -> dict:
         d["diverged"].append(r.diverged)
         for axis in (*AXES, "position"):
             d.setdefault(axis, []).append(getattr(r, f"rmse_{axis}"))
+        for axis in TAIL:
+            d.setdefault(axis, []).append(getattr(r, axis))
     return {k: {a: np.asarray(v) for a, v in d.items()} for k, d in out.items()}
 
 
@@ -171,7 +176,7 @@ def _paired(a: np.ndarray, b: np.ndarray) -> dict:
 def _ranking(table: dict, scenario: str, names, variant_of: dict | None = None) -> dict:
     """Order of ``names`` by mean RMSE per axis (ascending); a diverging controller ranks last."""
     ranks = {}
-    for axis in (*AXES, "position"):
+    for axis in (*AXES, "position", "tail_position"):
         means = {}
         for n in names:
             v = (variant_of or {}).get(n, "default")
@@ -193,7 +198,7 @@ def summarise(rows: list[Row]) -> dict:
         for (s, n, v), d in table.items():
             if s != sc:
                 continue
-            rec = {a: _stats(d[a]) for a in (*AXES, "position")}
+            rec = {a: _stats(d[a]) for a in (*AXES, "position", *TAIL)}
             rec["n_seeds"] = int(len(d["seed"]))
             rec["n_diverged"] = int(np.sum(d["diverged"]))
             entry["runs"].setdefault(n, {})[v] = rec
@@ -210,7 +215,7 @@ def summarise(rows: list[Row]) -> dict:
         for a, b in itertools.combinations(paper_names, 2):
             entry["paired"][f"{a} vs {b}"] = {
                 axis: _paired(table[(sc, a, "default")][axis], table[(sc, b, "default")][axis])
-                for axis in (*AXES, "position")
+                for axis in (*AXES, "position", "tail_position")
             }
         for variant, (applies, _, _) in VARIANTS.items():
             changed = {n: variant for n in applies if (sc, n, variant) in table and n in paper_names}
@@ -363,6 +368,7 @@ def main(out: str | Path = "paper", seeds: int = 20, workers: int | None = None,
     write_csv(out / "results" / "rmse.csv", ROW_HEADER, (r.csv_row() for r in rows))
     summary = summarise(rows)
     summary["seeds"] = seeds
+    summary["transient_s"] = TRANSIENT
     summary["divergences"] = [
         {"scenario": r.scenario, "controller": r.controller, "variant": r.variant, "seed": r.seed,
          "diverged_at": r.diverged_at, "cause": r.cause}

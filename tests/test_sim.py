@@ -325,3 +325,16 @@ def test_run_longer_than_the_default_chunk(monkeypatch):
 def test_extreme_valid_scenarios_emit_no_warning(changes):
     r = sim.simulate(_scenario(duration=0.5, **changes), "backstepping")
     assert r.diverged
+
+
+def test_rmse_after_transient_equals_metrics_on_the_tail_of_the_trajectory():
+    """The kernel's post-transient accumulators against numpy on the kept poses t >= TRANSIENT."""
+    from wmr import metrics
+    from wmr import scenario as scn_
+
+    r = sim.simulate(scn_.load(scn_.builtin("lemniscate")), "backstepping", seed=2)
+    tail = r.t >= sim.TRANSIENT
+    expected = metrics.rmse(r.q[tail], r.ref[tail])
+    for key, value in expected.items():
+        assert r.rmse_after_transient[key] == pytest.approx(value, rel=1e-12)
+    assert r.rmse_after_transient["position"] < r.rmse["position"]  # the transient dominates

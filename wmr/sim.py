@@ -34,13 +34,17 @@ from wmr.kinematics import integrator_code, step, wrap_angle
 from wmr.references import ReferenceSampler
 from wmr.scenario import Scenario
 
-__all__ = ["RunResult", "simulate", "CAUSES", "CHUNK"]
+__all__ = ["RunResult", "simulate", "kernel", "seed_sequences", "CAUSES", "CHUNK", "TRANSIENT"]
 
 #: Steps simulated per kernel call (noise and reference are generated per chunk).
 CHUNK = 8192
 #: Divergence causes recorded by the kernel.
 CAUSES = {0: None, 1: "non-finite value", 2: "position error exceeded divergence_bound"}
-_N_ACC = 6  # sums of squares: x, y, theta (world), e1, e2 (robot frame); and the count
+#: Start [s] of the post-transient window of ``RunResult.rmse_after_transient`` (notes §5.5).
+TRANSIENT = 5.0
+# sums of squares x, y, theta (world), e1, e2 (robot frame), the count; then x, y, theta and the
+# count again over the poses with t >= TRANSIENT
+_N_ACC = 10
 
 
 @dataclass
@@ -59,6 +63,9 @@ class RunResult:
         when the run diverged.
     rmse_robot_frame : dict
         RMSE of ``e1``, ``e2`` (robot frame) — their squares sum to the position error.
+    rmse_after_transient : dict
+        The RMSE of ``rmse`` over the poses with ``t >= TRANSIENT`` only (NaN if none, or
+        diverged): the initial pose error dominates the full-run figure.
     diverged, diverged_at, cause
         Whether the run stopped early, at which time [s], and why.
     """
@@ -70,6 +77,7 @@ class RunResult:
     n_steps: int
     rmse: dict[str, float]
     rmse_robot_frame: dict[str, float]
+    rmse_after_transient: dict[str, float] = field(default_factory=dict)
     diverged: bool = False
     diverged_at: float | None = None
     cause: str | None = None
@@ -101,7 +109,7 @@ def _advance_template(
     k0, k1, dt, integrator,
     q, q_hat, ref, noise, use_ekf, Pq, Qp, Rp,
     dist_start, dist_stop, dist_v, dist_w, v_max, w_max, bound,
-    acc, status, keep, q_log, qhat_log, u_log, s_log,
+    acc, t_tail, status, keep, q_log, qhat_log, u_log, s_log,
 ):  # fmt: skip
     """Advance the loop over steps ``k0 .. k1-1``; ``ref`` holds rows ``k0 .. k1``.
 
@@ -161,6 +169,11 @@ def _advance_template(
         acc[3] += e1 * e1
         acc[4] += e2 * e2
         acc[5] += 1.0
+        if (k + 1) * dt >= t_tail:
+            acc[6] += dx * dx
+            acc[7] += dy * dy
+            acc[8] += dth * dth
+            acc[9] += 1.0
         if not (math.isfinite(q[0]) and math.isfinite(q[1]) and math.isfinite(q[2])):
             status[0] = k + 1
             status[1] = 1
@@ -197,7 +210,8 @@ def _accumulate_initial(q, ref0, acc):
     dx, dy = ref0[0] - q[0], ref0[1] - q[1]
     dth = math.atan2(math.sin(ref0[2] - q[2]), math.cos(ref0[2] - q[2]))
     c, s = math.cos(q[2]), math.sin(q[2])
-    acc[:] = (dx * dx, dy * dy, dth * dth, (c * dx + s * dy) ** 2, (-s * dx + c * dy) ** 2, 1.0)
+    acc[:6] = (dx * dx, dy * dy, dth * dth, (c * dx + s * dy) ** 2, (-s * dx + c * dy) ** 2, 1.0)
+    acc[6:] = 0.0  # t_0 = 0 < TRANSIENT
 
 
 def seed_sequences(seed: int | np.random.SeedSequence):
@@ -285,7 +299,7 @@ def simulate(
             p, s, W, P, k0, k1, dt, integ, q, q_hat, ref, noise, use_ekf, Pq, Qp, Rp,
             dist[0], dist[1], dist_v, dist_w,
             scenario.limits.v_max, scenario.limits.w_max, scenario.divergence_bound,
-            acc, status, keep, q_log, qhat_log, u_log, s_log,
+            acc, TRANSIENT, status, keep, q_log, qhat_log, u_log, s_log,
         )  # fmt: skip
         if keep:
             ref_log[k0 + 1 : k1 + 1] = ref[1:]
@@ -295,10 +309,16 @@ def simulate(
 
     diverged = status[0] >= 0
     steps = int(status[0]) if diverged else n
+    rmse_tail = dict.fromkeys(("x", "y", "theta", "position"), math.nan)
     if diverged:
         rmse = dict.fromkeys(("x", "y", "theta", "position"), math.nan)
         rmse_rf = {"e1": math.nan, "e2": math.nan}
     else:
+        if acc[9] > 0:
+            m_t = acc[9]
+            rmse_tail = {"x": math.sqrt(acc[6] / m_t), "y": math.sqrt(acc[7] / m_t),
+                         "theta": math.sqrt(acc[8] / m_t),
+                         "position": math.sqrt((acc[6] + acc[7]) / m_t)}  # fmt: skip
         m = acc[5]
         rmse = {
             "x": math.sqrt(acc[0] / m),
@@ -309,7 +329,8 @@ def simulate(
         rmse_rf = {"e1": math.sqrt(acc[3] / m), "e2": math.sqrt(acc[4] / m)}
     result = RunResult(
         scenario=scenario.name, controller=controller, seed=int(seed) if np.isscalar(seed) else -1,
-        dt=dt, n_steps=n, rmse=rmse, rmse_robot_frame=rmse_rf, diverged=bool(diverged),
+        dt=dt, n_steps=n, rmse=rmse, rmse_robot_frame=rmse_rf, rmse_after_transient=rmse_tail,
+        diverged=bool(diverged),
         diverged_at=steps * dt if diverged else None, cause=CAUSES[int(status[1])],
         state_names=state_names,
         extra={"W": W, "P": P, "s": s, "q_hat": q_hat, "P_pose": Pq if use_ekf else None},

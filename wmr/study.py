@@ -51,6 +51,10 @@ class Row:
     diverged: bool
     diverged_at: float | None = None
     cause: str | None = None
+    tail_x: float = math.nan  # RMSE over t >= wmr.sim.TRANSIENT (not in rmse.csv)
+    tail_y: float = math.nan
+    tail_theta: float = math.nan
+    tail_position: float = math.nan
 
     def csv_row(self) -> tuple:
         return (self.scenario, self.controller, self.variant, self.seed, self.rmse_x, self.rmse_y,
@@ -63,8 +67,10 @@ def run_job(job: Job) -> Row:
 
     r = simulate(job.scenario, job.controller, job.seed, settings=job.settings,
                  keep_trajectory=False)  # fmt: skip
+    t = r.rmse_after_transient
     return Row(job.scenario.name, job.controller, job.variant, job.seed, r.rmse["x"], r.rmse["y"],
-               r.rmse["theta"], r.rmse["position"], r.diverged, r.diverged_at, r.cause)  # fmt: skip
+               r.rmse["theta"], r.rmse["position"], r.diverged, r.diverged_at, r.cause,
+               t["x"], t["y"], t["theta"], t["position"])  # fmt: skip
 
 
 def default_workers() -> int:
