@@ -872,16 +872,7 @@ def write_table(summary: dict, path: Path) -> None:
             for sc, d in entries.items():
                 cells = [
                     f"{d[k]['mean']:.3f} ± {d[k]['std']:.3f}"
-                    for k in (
-                        "rel_error",
-                        "rel_error_v",
-                        "rel_error_w",
-                        "norm_ratio",
-                        "matrix_cosine",
-                        "cosine",
-                        "sign_v",
-                        "sign_w",
-                    )
+                    for k in LEARNED_KEYS
                 ]
                 lines.append(f"| {sc}{suffix} | " + " | ".join(cells) + " |")
         lines += [
