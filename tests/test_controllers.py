@@ -200,3 +200,21 @@ def test_euler_scenario_runs_with_the_euler_jacobian(paper):
     sc = _euler_scenario(paper["sinusoid"])
     p, *_ = pid.pack(pid.Settings(), sc, np.random.default_rng(0))
     assert p.integrator == EULER
+
+
+def test_a_failed_weight_update_is_counted_not_silent(paper):
+    """A measurement covariance that makes S indefinite: the update fails (NaN NIS), changes
+    nothing, and is counted (P itself stays healthy, so only the failed update can count)."""
+    from wmr.controllers import iapid_nn_dekf
+
+    sc = paper["sinusoid"]
+    p, s, W, P = iapid_nn_dekf.pack(iapid_nn_dekf.Settings(), sc, np.random.default_rng(0))
+    u = np.zeros(2)
+    ref = np.array([0.0, 0.0, 0.0, 0.5, 0.0])
+    iapid_nn_dekf.law(p, s, W, P, np.zeros(3), ref, 0.01, u)  # first step: no update yet
+    p.R[:, :] = -1e9 * np.eye(3)  # injected fault: an indefinite innovation covariance
+    W_before = W.copy()
+    iapid_nn_dekf.law(p, s, W, P, np.array([0.005, 0.0, 0.0]), ref, 0.01, u)
+    assert s[pid.S_REPAIRS] == 1
+    np.testing.assert_array_equal(W, W_before)  # the failed update changed nothing
+    assert np.all(np.diag(P) > 0)

@@ -112,8 +112,9 @@ def adapt(p, s, W, P, q_hat, ref, dt):
     innovation[0] = ref[0] - q_hat[0]
     innovation[1] = ref[1] - q_hat[1]
     innovation[2] = wrap_angle(ref[2] - q_hat[2])
-    weight_update(W, P, p.H, innovation, p.q_diag, p.R, p.work)
-    if repair_covariance(P, P_FLOOR):
+    nis = weight_update(W, P, p.H, innovation, p.q_diag, p.R, p.work)
+    # a failed update (S not positive definite: NaN NIS, nothing changed) counts like a repair
+    if repair_covariance(P, P_FLOOR) or not math.isfinite(nis):
         s[_S_REPAIRS] += 1.0
 
 

@@ -110,8 +110,9 @@ def identify(p, s, W, P, q_hat, dt):
     innovation = d - z
     s[S_NN_ERR] = math.sqrt(innovation @ innovation)
     nn.weight_jacobian(W, x, p.nn_n_h, N_OUT, h, p.H)
-    weight_update(W, P, p.H, innovation, p.q_diag, p.R, p.work)
-    if repair_covariance(P, P_FLOOR):
+    nis = weight_update(W, P, p.H, innovation, p.q_diag, p.R, p.work)
+    # a failed update (S not positive definite: NaN NIS, nothing changed) counts like a repair
+    if repair_covariance(P, P_FLOOR) or not math.isfinite(nis):
         s[S_REPAIRS] += 1.0
     if p.nn_printed_jacobian:
         Jx = nn.input_jacobian_printed(W, x, p.nn_n_h, N_OUT)
