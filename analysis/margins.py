@@ -1238,6 +1238,8 @@ def main(out: str | Path = "paper", every: int = 50, seed: int = 0) -> dict:
         figures.append(name)
     results["cross_checks"] = cc
     results["figures"] = figures
+    _kd_limits = (intervals["Kdv"][1], intervals["Kdw"][1])
+    _kd_clamp = (pid_mod.Settings().gain_max[2], pid_mod.Settings().gain_max[5])
     results["notes"] = [
         "Margins are loop-at-a-time (loop broken at one plant input, the other loop closed); "
         "they ignore simultaneous perturbations of both channels.",
@@ -1257,8 +1259,11 @@ def main(out: str | Path = "paper", every: int = 50, seed: int = 0) -> dict:
         "constant (v_r, w_r): the feed-forward only moves the integrals' equilibrium to zero.",
         "Along runs the analysis is frozen-time (gains and (v_r, w_r) frozen at t_k).",
         "stable_interval_one_gain_at_a_time: each gain varied alone, the others at their "
-        "defaults. The derivative gains destabilise the loop at Kdv ~ 0.975 and Kdw ~ 0.95 "
-        "(dt = 0.01): below the SGD clamp gain_max = 1 of wmr.controllers.pid.Settings.",
+        f"defaults. The derivative gains destabilise the loop at Kdv ~ {_kd_limits[0]:.3g} and "
+        f"Kdw ~ {_kd_limits[1]:.3g} (dt = {dt:g}); the SGD clamp gain_max of "
+        f"wmr.controllers.pid.Settings is Kdv <= {_kd_clamp[0]:g}, Kdw <= {_kd_clamp[1]:g}: "
+        + ("below" if max(_kd_clamp[0] / _kd_limits[0], _kd_clamp[1] / _kd_limits[1]) < 1
+           else "NOT below") + " those limits.",
         "Printed rotation (E3): on a straight line the controller sees N(theta) e with "
         "N = [[1,0,0],[sin 2theta, cos 2theta, 0],[0,0,1]]; the loop depends on the heading.",
     ]

@@ -229,6 +229,26 @@ def _fmt(mean, std):
     return "—" if mean is None else f"{mean:.4f} ± {std:.4f}"
 
 
+def gain_excursions(scenarios: dict, seed: int = 0) -> dict:
+    """How far SGD moves the PID gains: max over the run of |K - K0|, absolute and relative to
+    max(|K0|, 0.1), per gain, for the adaptive controllers (seed ``seed``)."""
+    from wmr.controllers.pid import GAIN_NAMES
+    from wmr.sim import simulate
+
+    out: dict = {}
+    for sc_name, sc in scenarios.items():
+        for name in ("adaptive-pid", "iapid-nn-dekf"):
+            K = simulate(sc, name, seed).state[:, :6]
+            K0 = np.array(sc.settings(name).gains)
+            dev = np.abs(K - K0).max(axis=0)
+            out.setdefault(sc_name, {})[name] = {
+                "max_abs": dict(zip(GAIN_NAMES, map(float, dev), strict=True)),
+                "max_rel": dict(zip(GAIN_NAMES, map(float, dev / np.maximum(np.abs(K0), 0.1)),
+                                    strict=True)),
+            }  # fmt: skip
+    return out
+
+
 def write_tables(summary: dict, out: Path) -> None:
     """Tables 1-3 side by side with the paper (Markdown and LaTeX booktabs)."""
     for sc, entry in summary["scenarios"].items():
@@ -369,6 +389,11 @@ def main(out: str | Path = "paper", seeds: int = 20, workers: int | None = None,
     summary = summarise(rows)
     summary["seeds"] = seeds
     summary["transient_s"] = TRANSIENT
+    summary["gain_excursion"] = gain_excursions(scenarios)
+    summary["pose_source"] = {
+        sc: {n: ("filtered" if s.estimator.pose_source == "filtered" or (
+            s.estimator.pose_source == "paper" and controllers.get(n).uses_estimator) else "raw")
+             for n in controllers.NAMES} for sc, s in scenarios.items()}  # fmt: skip
     summary["divergences"] = [
         {"scenario": r.scenario, "controller": r.controller, "variant": r.variant, "seed": r.seed,
          "diverged_at": r.diverged_at, "cause": r.cause}
