@@ -218,3 +218,28 @@ def test_a_failed_weight_update_is_counted_not_silent(paper):
     assert s[pid.S_REPAIRS] == 1
     np.testing.assert_array_equal(W, W_before)  # the failed update changed nothing
     assert np.all(np.diag(P) > 0)
+
+
+@pytest.mark.parametrize("name", ["adaptive-pid", "iapid-nn-dekf", "adaptive-nn"])
+def test_adaptive_controllers_remember_the_saturated_input(name, paper):
+    """With tight limits the input each controller stores for its next adaptation step (Jacobian,
+    identifier, regressor) is the applied, saturated one, and saturation does actually occur."""
+    sc = dataclasses.replace(paper["lemniscate"], limits=scn.Limits(0.3, 0.4), duration=5.0)
+    r = simulate(sc, name, seed=0)
+    s_final = r.extra["s"]
+    assert np.any(np.abs(r.u[:, 0]) == 0.3) or np.any(np.abs(r.u[:, 1]) == 0.4)
+    if name == "adaptive-nn":
+        stored = s_final[9:11]
+    else:
+        stored = s_final[pid.S_U : pid.S_U + 2]
+    np.testing.assert_array_equal(stored, r.u[-1])
+
+
+def test_saturated_channel_has_a_zero_regressor(paper):
+    sc = dataclasses.replace(paper["sinusoid"], limits=scn.Limits(0.01, 100.0))
+    p, s, W, P = pid.pack(pid.Settings(), sc, np.random.default_rng(0))
+    u = np.zeros(2)
+    pid.law(p, s, W, P, np.array([-1.0, 0.0, 0.0]), np.array([0.0, 0.0, 0.0, 0.5, 0.0]), 0.01, u)
+    assert u[0] == 0.01
+    np.testing.assert_array_equal(s[pid.S_PHI : pid.S_PHI + 3], 0.0)  # v saturated: no gradient
+    assert np.any(s[pid.S_PHI + 3 : pid.S_PHI + 6] != 0.0) or u[1] == 0.0

@@ -138,6 +138,7 @@ class PID:
         self.st = st
         self.K = np.array(st.gains, dtype=float)
         self.J = np.zeros((3, 2))
+        self.limits = (math.inf, math.inf)  # (v_max, w_max): the law saturates its own output
         self.integral = np.zeros(2)
         self.prev = np.zeros(2)
         self.phi = np.zeros(6)
@@ -159,6 +160,10 @@ class PID:
         u = np.array([self.K[:3] @ self.phi[:3], self.K[3:] @ self.phi[3:]])
         if self.st.feed_forward:
             u += (ref[3] * math.cos(e[2]), ref[4])
+        for c, limit in enumerate(self.limits):  # saturated channel: no gradient through it
+            if abs(u[c]) > limit:
+                u[c] = min(max(u[c], -limit), limit)
+                self.phi[3 * c : 3 * c + 3] = 0.0
         return u
 
 
@@ -256,6 +261,8 @@ def reference_run(sc, controller: str, seed: int) -> dict:
     std = np.array(sc.noise.pose_std)
     noise = np.random.default_rng(noise_ss).standard_normal((n, 3)) * std  # one chunk (n <= 8192)
     law = REFERENCES[controller](sc.settings(controller), np.random.default_rng(init_ss))
+    if hasattr(law, "pid"):
+        law.pid.limits = (sc.limits.v_max, sc.limits.w_max)
     ref = sample(sc.reference.kind, sc.reference.params, dt, n + 1)
     est = sc.estimator
     use_ekf = est.pose_source == "filtered" or (est.pose_source == "paper" and law.uses_estimator)

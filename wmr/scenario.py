@@ -10,7 +10,6 @@ and the offending value.  Unknown keys are errors.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import tomllib
 from collections.abc import Mapping

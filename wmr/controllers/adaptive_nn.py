@@ -40,10 +40,11 @@ _S_PHI = 3  # 6: previous network input
 _S_U = 9  # 2: previous input
 _S_Q = 11  # 3: previous pose estimate
 _S_STARTED = 14
-_S_SIZE = 15
+_S_SAT = 15  # 2: whether v, w were saturated at the previous step
+_S_SIZE = 17
 P_FLOOR = 1e-12
 
-Params = namedtuple("Params", "gains printed_rotation integrator n_h q_diag R Hn H work")
+Params = namedtuple("Params", "gains printed_rotation integrator n_h q_diag R Hn H work v_max w_max")
 
 
 @dataclass(frozen=True)
@@ -84,7 +85,7 @@ def pack(settings: Settings, scenario, rng):
     p = Params(np.array(settings.gains), settings.printed_rotation,
                INTEGRATORS[scenario.integrator], settings.hidden, np.full(n, settings.q),
                settings.r * np.eye(3), np.zeros((N_OUT, n)), np.zeros((3, n)),
-               np.zeros((3, 3, n)))  # fmt: skip
+               np.zeros((3, 3, n)), scenario.limits.v_max, scenario.limits.w_max)  # fmt: skip
     return p, np.zeros(_S_SIZE), W, settings.p0 * np.eye(n)
 
 
@@ -106,6 +107,9 @@ def adapt(p, s, W, P, q_hat, ref, dt):
     phi = s[_S_PHI : _S_PHI + N_IN].copy()
     _, h = nn.forward(W, phi, p.n_h, N_OUT)
     nn.weight_jacobian(W, phi, p.n_h, N_OUT, h, p.Hn)
+    for c in range(N_OUT):  # a saturated input did not depend on the weights
+        if s[_S_SAT + c] != 0.0:
+            p.Hn[c, :] = 0.0
     _, G = step_jacobians(s[_S_Q : _S_Q + 3], s[_S_U : _S_U + 2], dt, p.integrator)
     p.H[:, :] = G @ p.Hn
     innovation = np.empty(3)
@@ -129,6 +133,11 @@ def law(p, s, W, P, q_hat, ref, dt, u):
     v_r = ref[3]
     u[0] = v_r * math.cos(e[2]) + p.gains[0] * e[0] + z[0]
     u[1] = ref[4] + v_r * (p.gains[1] * e[1] + p.gains[2] * math.sin(e[2])) + z[1]
+    # Saturate here (the simulator's clip is then a no-op) so the input remembered for the next
+    # adaptation step is the one the plant receives.
+    for c, limit in ((0, p.v_max), (1, p.w_max)):
+        s[_S_SAT + c] = 1.0 if abs(u[c]) > limit else 0.0
+        u[c] = min(max(u[c], -limit), limit)
     s[_S_NN] = z[0]
     s[_S_NN + 1] = z[1]
     s[_S_PHI : _S_PHI + N_IN] = phi

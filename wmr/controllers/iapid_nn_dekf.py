@@ -29,7 +29,7 @@ from wmr._settings import check, positive
 from wmr.controllers import pid
 from wmr.controllers.pid import S_NN_ERR, S_Q, S_REPAIRS, S_STARTED, S_U
 from wmr.ekf import repair_covariance, weight_update
-from wmr.kinematics import INTEGRATORS, tracking_error, wrap_angle
+from wmr.kinematics import tracking_error, wrap_angle
 
 __all__ = ["Settings", "STATE_NAMES", "N_IN", "pack", "law", "identifier_input"]
 
@@ -78,7 +78,7 @@ class Settings(pid.Settings):
 def pack(settings: Settings, scenario, rng):
     """``(p, s, W, P)``: PID parameters, network weights ``W`` (n,) and covariance ``P0``."""
     n = nn.n_weights(N_IN, settings.hidden, N_OUT)
-    base = pid.make_params(settings, 2, INTEGRATORS[scenario.integrator], n_h=settings.hidden,
+    base = pid.make_params(settings, 2, scenario, n_h=settings.hidden,
                             printed_jacobian=settings.printed_jacobian,
                             q_diag=np.full(n, settings.q), R=settings.r * np.eye(N_OUT))  # fmt: skip
     p = Params(*base, H=np.zeros((N_OUT, n)), work=np.zeros((3, N_OUT, n)))

@@ -70,7 +70,7 @@ STATE_NAMES = GAIN_NAMES + J_NAMES
 Params = namedtuple(
     "Params",
     "K_min K_max mu alpha feed_forward printed_rotation adaptive integrator "
-    "nn_n_h nn_printed_jacobian q_diag R",
+    "nn_n_h nn_printed_jacobian q_diag R v_max w_max",
 )
 
 
@@ -120,9 +120,10 @@ class Settings:
             check(lo <= k <= hi, "gains", self.gains, "must lie within [gain_min, gain_max]")
 
 
-def make_params(settings: Settings, adaptive: int, integrator: int = 0, **nn) -> Params:
+def make_params(settings: Settings, adaptive: int, scenario, **nn) -> Params:
     """Jitted-side parameters: ``adaptive`` 0 fixed, 1 analytic Jacobian, 2 network Jacobian;
-    ``nn`` holds the network size and weight-filter matrices for ``iapid-nn-dekf``."""
+    the scenario's integrator and actuator limits; ``nn`` holds the network size and
+    weight-filter matrices for ``iapid-nn-dekf``."""
     return Params(
         K_min=np.array(settings.gain_min),
         K_max=np.array(settings.gain_max),
@@ -131,11 +132,13 @@ def make_params(settings: Settings, adaptive: int, integrator: int = 0, **nn) ->
         feed_forward=settings.feed_forward,
         printed_rotation=settings.printed_rotation,
         adaptive=adaptive,
-        integrator=integrator,
+        integrator=INTEGRATORS[scenario.integrator],
         nn_n_h=nn.get("n_h", 0),
         nn_printed_jacobian=nn.get("printed_jacobian", False),
         q_diag=nn.get("q_diag", np.zeros(0)),
         R=nn.get("R", np.zeros((0, 0))),
+        v_max=scenario.limits.v_max,
+        w_max=scenario.limits.w_max,
     )
 
 
@@ -154,7 +157,7 @@ class FixedSettings(Settings):
 
 def pack(settings: Settings, scenario, rng):
     """``(p, s, W, P)`` for ``pid``/``adaptive-pid``: no network, so ``W`` and ``P`` are empty."""
-    p = make_params(settings, 1 if settings.adapt else 0, INTEGRATORS[scenario.integrator])
+    p = make_params(settings, 1 if settings.adapt else 0, scenario)
     return p, initial_state(settings), np.zeros(0), np.zeros((0, 0))
 
 
@@ -190,6 +193,12 @@ def pid_output(p, s, e, ref, dt, u):
     if p.feed_forward:
         u[0] += ref[3] * math.cos(e[2])
         u[1] += ref[4]
+    # Saturate here (the simulator's clip is then a no-op) so the controller remembers the input
+    # the plant receives; a saturated channel does not depend on its gains: regressor zero.
+    for c, limit in ((0, p.v_max), (1, p.w_max)):
+        if abs(u[c]) > limit:
+            u[c] = min(max(u[c], -limit), limit)
+            phi[3 * c : 3 * c + 3] = 0.0
 
 
 @njit
