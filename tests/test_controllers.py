@@ -171,13 +171,28 @@ def test_dann_starts_as_backstepping(paper):
     np.testing.assert_array_equal(a.u[0], b.u[0])
 
 
-def test_printed_nn_jacobian_variant_changes_the_run(paper):
+def test_printed_nn_jacobian_variant_uses_eqs_22_24(paper):
+    """With printed_jacobian the logged J is dt times the printed eqs. 22-24 evaluated at the
+    identifier's input and weights (replayed here step by step with the same law)."""
+    from wmr import nn
+    from wmr.controllers import iapid_nn_dekf as ia
+
     sc = paper["sinusoid"]
-    base = sc.settings("iapid-nn-dekf")
-    a = simulate(sc, "iapid-nn-dekf", seed=0, settings=base)
-    b = simulate(sc, "iapid-nn-dekf", seed=0,
-                 settings=dataclasses.replace(base, printed_jacobian=True))  # fmt: skip
-    assert not np.array_equal(a.state[:, 6:12], b.state[:, 6:12])
+    st = dataclasses.replace(sc.settings("iapid-nn-dekf"), printed_jacobian=True)
+    p, s, W, P = ia.pack(st, sc, np.random.default_rng(0))
+    rng = np.random.default_rng(1)
+    u = np.zeros(2)
+    q = np.zeros(3)
+    ref = np.array([0.0, 0.0, 0.0, 0.5, 0.1])
+    for _ in range(5):
+        q_prev, u_prev = q.copy(), u.copy()
+        q = q + 0.005 * rng.normal(size=3)
+        started = s[pid.S_STARTED] != 0.0
+        ia.law(p, s, W, P, q, ref, 0.01, u)
+        if started:
+            x = ia.identifier_input(u_prev, q_prev[2])
+            expected = 0.01 * nn.input_jacobian_printed(W, x, st.hidden, 3)[:, :2]
+            np.testing.assert_allclose(s[6:12].reshape(3, 2), expected, rtol=1e-12, atol=1e-18)
 
 
 @pytest.mark.parametrize("name", controllers.NAMES)
@@ -196,10 +211,17 @@ def test_every_controller_tracks_a_noise_free_circle(name):
 
 
 def test_euler_scenario_runs_with_the_euler_jacobian(paper):
-    """The SGD Jacobian follows the scenario's integrator (EULER code passed to the law)."""
-    sc = _euler_scenario(paper["sinusoid"])
-    p, *_ = pid.pack(pid.Settings(), sc, np.random.default_rng(0))
-    assert p.integrator == EULER
+    """The SGD Jacobian logged by adaptive-pid is the ZOH Jacobian of the scenario's integrator,
+    at the previous pose estimate and input (Euler differs from the exact arc in dx/dw)."""
+    sc = dataclasses.replace(_euler_scenario(paper["sinusoid"]), duration=1.0)
+    r = simulate(sc, "adaptive-pid", seed=0)
+    J_logged = r.state[:, 6:12].reshape(-1, 3, 2)
+    for k in (5, 50, 99):
+        _, G_euler = step_jacobians(r.q_hat[k - 1], r.u[k - 1], r.dt, EULER)
+        _, G_exact = step_jacobians(r.q_hat[k - 1], r.u[k - 1], r.dt, EXACT)
+        np.testing.assert_allclose(J_logged[k], G_euler, rtol=1e-12, atol=1e-15)
+        assert not np.allclose(J_logged[k], G_exact, rtol=1e-9, atol=0)
+
 
 
 def test_a_failed_weight_update_is_counted_not_silent(paper):

@@ -1,0 +1,55 @@
+"""The reproduction study's statistics on hand-made rows: means, stds, ranking, paired tests."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from analysis import reproduction as rep
+from wmr.study import Row
+
+
+def _row(controller, seed, pos, scenario="lemniscate", diverged=False):
+    value = math.nan if diverged else pos
+    return Row(scenario, controller, "default", seed, value, value, value, value, diverged,
+               tail_x=value, tail_y=value, tail_theta=value, tail_position=value)  # fmt: skip
+
+
+def test_paired_difference_wins_and_wilcoxon():
+    a = np.array([1.0, 2.0, 3.0, 4.0, 5.0])
+    b = a + np.array([0.5, 0.4, 0.6, 0.3, 0.7])  # a better on every seed
+    r = rep._paired(a, b)
+    assert r["n"] == 5 and r["wins"] == 5
+    assert r["mean_diff"] == pytest.approx(-0.5)
+    assert r["std_diff"] == pytest.approx(np.std(a - b, ddof=1))
+    assert r["wilcoxon_p"] == pytest.approx(0.0625)  # exact two-sided, n = 5, all one sign: 2/2^5
+    assert rep._paired(a, a)["wilcoxon_p"] == 1.0  # no difference at all
+    nan_b = b.copy()
+    nan_b[0] = np.nan
+    assert rep._paired(a, nan_b)["n"] == 4  # a diverged seed is left out of the pairing
+
+
+def test_summarise_statistics_and_rankings():
+    rows = [_row(c, s, base + 0.01 * s) for c, base in
+            (("backstepping", 0.1), ("iapid-nn-dekf", 0.3), ("adaptive-pid", 0.2),
+             ("adaptive-nn", 0.4)) for s in range(3)]  # fmt: skip
+    out = rep.summarise(rows)["scenarios"]["lemniscate"]
+    rec = out["runs"]["adaptive-pid"]["default"]["position"]
+    assert rec["mean"] == pytest.approx(0.21) and rec["std"] == pytest.approx(0.01)  # ddof = 1
+    assert rec["n"] == 3
+    assert out["ranking"]["default"]["x"] == ["backstepping", "adaptive-pid", "iapid-nn-dekf",
+                                              "adaptive-nn"]  # fmt: skip
+    # the paper's order (IAPID < APID < DA-NN < BSC) is not this one
+    assert out["paper_ranking_reproduced"] == {"x": False, "y": False, "theta": False}
+
+
+def test_a_diverging_controller_ranks_last_and_is_counted():
+    rows = [_row("backstepping", s, 0.1) for s in range(3)]
+    rows += [_row("iapid-nn-dekf", s, 0.05, diverged=(s == 1)) for s in range(3)]
+    rows += [_row(c, s, 0.2) for c in ("adaptive-pid", "adaptive-nn") for s in range(3)]
+    out = rep.summarise(rows)["scenarios"]["lemniscate"]
+    assert out["ranking"]["default"]["position"][-1] == "iapid-nn-dekf"
+    assert out["runs"]["iapid-nn-dekf"]["default"]["n_diverged"] == 1
+    assert out["runs"]["iapid-nn-dekf"]["default"]["position"]["n"] == 2
