@@ -744,22 +744,9 @@ def plot_learned(
             rs = reference[name]
             rel0 = np.median([s["rel_error"] for s in rs], axis=0)
             cos0 = np.median([_rolling_mean(s["cosine"], w) for s in rs], axis=0)
-            row[0].plot(
-                rs[0]["t"],
-                rel0,
-                color="tab:orange",
-                ls="--",
-                lw=1.2,
-                label="median, no measurement noise",
-            )
-            row[1].plot(
-                rs[0]["t"],
-                cos0,
-                color="tab:orange",
-                ls="--",
-                lw=1.2,
-                label="median, no measurement noise",
-            )
+            for ax, curve in zip(row[:2], (rel0, cos0), strict=True):
+                ax.plot(rs[0]["t"], curve, color="tab:orange", ls="--", lw=1.2,
+                        label="median, no measurement noise")  # fmt: skip
         row[0].axhline(1.0, color="k", ls="--", lw=0.8, label="J = 0 (knows nothing)")
         row[0].set_yscale("log")
         row[0].set_ylabel(f"{name}\n||J_NN - J|| / ||J||", fontsize=9)

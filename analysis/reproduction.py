@@ -282,6 +282,31 @@ def write_tables(summary: dict, out: Path) -> None:
         atomic_write_text(out / "tables" / f"table{num}.tex", "\n".join(tex) + "\n")
 
 
+def _three_panels(runs, signal, ylabels, title, path, reference=None, zero_line=False):
+    """Three stacked panels of ``signal(run)`` (n, 3) against time, one line per controller."""
+    import matplotlib.pyplot as plt
+
+    from wmr.plots import COLORS
+
+    fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True, layout="constrained")
+    values = [signal(r) for r in runs]
+    for i, (ax, lab) in enumerate(zip(axes, ylabels, strict=True)):
+        if reference is not None:
+            ax.plot(runs[0].t, reference[:, i], "k--", lw=1.4, label="reference")
+        for r, v in zip(runs, values, strict=True):
+            ax.plot(r.t, v[:, i], color=COLORS[r.controller], lw=1.0,
+                    label=controllers.get(r.controller).label)  # fmt: skip
+        ax.set_ylabel(lab)
+        ax.grid(alpha=0.3)
+        if zero_line:
+            ax.axhline(0, color="k", lw=0.5)
+    axes[0].legend(fontsize=8, ncol=len(runs) + (reference is not None))
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle(title)
+    save_figure(fig, path)
+    plt.close(fig)
+
+
 def write_figures(scenarios: dict, out: Path, seed: int = 0) -> list[str]:
     """Figures 4-10 for one seed: paths, pose coordinates and robot-frame errors."""
     import matplotlib.pyplot as plt
@@ -309,38 +334,17 @@ def write_figures(scenarios: dict, out: Path, seed: int = 0) -> list[str]:
     plt.close(fig)
     written.append("fig04_paths.png")
     for num, (sc, rs) in zip((5, 6, 7), runs.items(), strict=True):
-        fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True, layout="constrained")
-        for i, lab in enumerate(("x [m]", "y [m]", r"$\theta$ [rad]")):
-            axes[i].plot(rs[0].t, rs[0].ref[:, i], "k--", lw=1.4, label="reference")
-            for r in rs:
-                axes[i].plot(r.t, r.q[:, i], color=COLORS[r.controller], lw=1.0,
-                             label=controllers.get(r.controller).label)  # fmt: skip
-            axes[i].set_ylabel(lab)
-            axes[i].grid(alpha=0.3)
-        axes[0].legend(fontsize=8, ncol=5)
-        axes[-1].set_xlabel("t [s]")
-        fig.suptitle(f"Figure {num} equivalent: pose coordinates, {sc} (seed {seed})")
         name = f"fig{num:02d}_coordinates_{sc}.png"
-        save_figure(fig, out / "figures" / name)
-        plt.close(fig)
+        _three_panels(rs, lambda r: r.q, ("x [m]", "y [m]", r"$\theta$ [rad]"),
+                      f"Figure {num} equivalent: pose coordinates, {sc} (seed {seed})",
+                      out / "figures" / name, reference=rs[0].ref[:, :3])  # fmt: skip
         written.append(name)
     for num, (sc, rs) in zip((8, 9, 10), runs.items(), strict=True):
-        fig, axes = plt.subplots(3, 1, figsize=(9, 7), sharex=True, layout="constrained")
-        for r in rs:
-            e = robot_frame_errors(r.q, r.ref)
-            for i in range(3):
-                axes[i].plot(r.t, e[:, i], color=COLORS[r.controller], lw=1.0,
-                             label=controllers.get(r.controller).label)  # fmt: skip
-        for ax, lab in zip(axes, ("$x_e$ [m]", "$y_e$ [m]", r"$\theta_e$ [rad]"), strict=True):
-            ax.set_ylabel(lab)
-            ax.grid(alpha=0.3)
-            ax.axhline(0, color="k", lw=0.5)
-        axes[0].legend(fontsize=8, ncol=4)
-        axes[-1].set_xlabel("t [s]")
-        fig.suptitle(f"Figure {num} equivalent: tracking errors (eq. 6), {sc} (seed {seed})")
         name = f"fig{num:02d}_errors_{sc}.png"
-        save_figure(fig, out / "figures" / name)
-        plt.close(fig)
+        _three_panels(rs, lambda r: robot_frame_errors(r.q, r.ref),
+                      ("$x_e$ [m]", "$y_e$ [m]", r"$\theta_e$ [rad]"),
+                      f"Figure {num} equivalent: tracking errors (eq. 6), {sc} (seed {seed})",
+                      out / "figures" / name, zero_line=True)  # fmt: skip
         written.append(name)
     return written
 
