@@ -265,3 +265,53 @@ def test_saturated_channel_has_a_zero_regressor(paper):
     assert u[0] == 0.01
     np.testing.assert_array_equal(s[pid.S_PHI : pid.S_PHI + 3], 0.0)  # v saturated: no gradient
     assert np.any(s[pid.S_PHI + 3 : pid.S_PHI + 6] != 0.0) or u[1] == 0.0
+
+
+@pytest.mark.parametrize("heading", [0.3, np.pi - 0.01], ids=["plain", "across-the-seam"])
+def test_identify_is_one_textbook_ekf_step_then_the_chain_rule_jacobian(paper, heading):
+    """``iapid_nn_dekf.identify`` in isolation against an independent numpy oracle: the network
+    written out, ``H`` in closed form, the dense Joseph update of ``weight_update_reference``,
+    then ``J = dt dNN/d(v, w)`` by central differences at the updated weights.  The second case
+    puts the previous and current headings on both sides of +-pi: the target must use the short
+    way round (a wrong wrap gives a target of ~-2 pi / dt and fails)."""
+    from wmr import ekf
+    from wmr.controllers import iapid_nn_dekf as ia
+
+    sc = paper["lemniscate"]
+    st = sc.settings("iapid-nn-dekf")
+    p, s, W, P = ia.pack(st, sc, np.random.default_rng(7))
+    rng = np.random.default_rng(8)
+    W += 0.3 * rng.normal(size=W.size)  # away from the near-zero start: every term matters
+    n_h, dt = st.hidden, 0.01
+    s[S_STARTED] = 1.0
+    s[S_U : S_U + 2] = (0.6, -0.4)
+    s[S_Q : S_Q + 3] = (0.2, -0.1, heading)
+    q_hat = np.array([0.206, -0.097, heading + 0.004])
+    q_hat[2] = math.atan2(math.sin(q_hat[2]), math.cos(q_hat[2]))
+
+    i1, i2 = n_h * ia.N_IN, n_h * ia.N_IN + n_h
+    i3 = i2 + 3 * n_h
+
+    def net(w, x):
+        V, bv, Wo, bw = w[:i1].reshape(n_h, ia.N_IN), w[i1:i2], w[i2:i3].reshape(3, n_h), w[i3:]
+        h = np.tanh(V @ x + bv)
+        return Wo @ h + bw, h, V, Wo
+
+    x = np.array([0.6, -0.4, math.cos(heading), math.sin(heading)])
+    z, h, V, Wo = net(W, x)
+    D = Wo * (1.0 - h * h)
+    H = np.hstack(((D[:, :, None] * x).reshape(3, -1), D, np.kron(np.eye(3), h), np.eye(3)))
+    target = np.array([0.006, 0.003, 0.004]) / dt
+    W_ref, P_ref = ekf.weight_update_reference(W, P, H, target - z, p.q_diag, p.R)
+
+    J = ia.identify(p, s, W, P, q_hat, dt)
+
+    np.testing.assert_allclose(s[pid.S_NN_ERR], np.linalg.norm(target - z), rtol=1e-9)
+    np.testing.assert_allclose(W, W_ref, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(P, P_ref, rtol=0, atol=1e-10 * np.abs(P_ref).max())
+    fd = np.empty((3, 2))
+    for j in range(2):
+        e = np.zeros(4)
+        e[j] = 1e-6
+        fd[:, j] = (net(W_ref, x + e)[0] - net(W_ref, x - e)[0]) / 2e-6
+    np.testing.assert_allclose(J, dt * fd, rtol=1e-6, atol=1e-10)

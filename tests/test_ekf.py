@@ -34,6 +34,67 @@ def test_fast_weight_update_equals_the_literal_joseph_form(n):
         np.testing.assert_array_equal(P, P.T)
 
 
+def _network_like_H(rng, m, n):
+    """A measurement matrix with the block structure of the network's ``H``: dense columns,
+    then columns with a single non-zero row (output weights and biases)."""
+    H = rng.normal(size=(m, n))
+    for a in range(n // 2, n):
+        keep = a % m
+        H[np.arange(m) != keep, a] = 0.0
+    return H
+
+
+@pytest.mark.parametrize("m", [1, 2, 3, 4])
+@pytest.mark.parametrize("n", [1, 2, 7, 82, 83])
+def test_h_times_p_is_bit_identical_to_the_sequential_axpys(m, n):
+    """Oracle: the same sums in the same order in numpy (``H[r, a] P[a]`` added for a = 0..n-1,
+    zero ``H[r, a]`` skipped); the fused two-row m = 3 path must not change a single bit."""
+    rng = np.random.default_rng(10 * n + m)
+    P = _spd(rng, n)
+    H = _network_like_H(rng, m, n)
+    expected = np.zeros((m, n))
+    for a in range(n):
+        for r in range(m):
+            if H[r, a] != 0.0:
+                expected[r] = expected[r] + H[r, a] * P[a]
+    out = np.full((m, n), np.nan)
+    ekf._h_times_p(H, P, out)
+    np.testing.assert_array_equal(out, expected)
+
+
+@pytest.mark.parametrize("m", [1, 2, 3, 4])
+@pytest.mark.parametrize("n", [1, 2, 7, 82, 83])
+def test_symmetric_rank_update_is_bit_identical_and_exactly_symmetric(m, n):
+    """Oracle: ``P + t_0 + t_1 + ...`` with ``t_r = outer(D_r, K_r) + outer(K_r, D_r)`` in numpy
+    (elementwise products and sums round like the kernel's, no FMA)."""
+    rng = np.random.default_rng(10 * n + m)
+    P = _spd(rng, n)
+    Kt, Dt = rng.normal(size=(m, n)), rng.normal(size=(m, n))
+    expected = P.copy()
+    for r in range(m):
+        expected = expected + (np.outer(Dt[r], Kt[r]) + np.outer(Kt[r], Dt[r]))
+    ekf._symmetric_rank_update(P, Kt, Dt)
+    np.testing.assert_array_equal(P, expected)
+    np.testing.assert_array_equal(P, P.T)
+
+
+@pytest.mark.parametrize("integrator", [kin.EXACT, kin.EULER, kin.RK4])
+def test_pose_predict_is_the_congruence_and_stays_exactly_symmetric(integrator):
+    rng = np.random.default_rng(integrator)
+    for _ in range(20):
+        q = rng.normal(size=3)
+        u = np.array([rng.uniform(-1, 1), rng.uniform(-2, 2)])
+        P = _spd(rng, 3, 1e-3)
+        Qp = np.diag(rng.uniform(1e-6, 1e-4, size=3))
+        F, _ = kin.step_jacobians(q, u, 0.05, integrator)
+        expected = F @ P @ F.T + Qp
+        q_hat = q.copy()
+        ekf.pose_predict(q_hat, P, u, 0.05, integrator, Qp)
+        np.testing.assert_allclose(P, expected, rtol=1e-14, atol=1e-18)
+        np.testing.assert_array_equal(P, P.T)
+        np.testing.assert_array_equal(q_hat, kin.step(q, u, 0.05, integrator))
+
+
 def test_weight_filter_equals_a_linear_kalman_filter():
     """With an output linear in the weights (z = H_k theta) the EKF is the linear KF."""
     rng = np.random.default_rng(0)

@@ -359,7 +359,7 @@ def test_floor_update_is_a_correct_ekf_update():
     from analysis.performance import floor_update
 
     rng = np.random.default_rng(5)
-    for n, m, specialise in ((83, 3, True), (83, 3, False), (20, 2, True)):
+    for n, m, specialise in ((83, 3, True), (83, 3, False), (20, 2, True), (7, 3, True)):
         A = rng.standard_normal((n, n))
         P0 = A @ A.T / n + np.eye(n)
         H = rng.standard_normal((m, n))

@@ -93,16 +93,8 @@ def joseph_update(x, P, H, innovation, R, work):
     HP = work[0]
     Kt = work[1]
     Dt = work[2]
-    # M^T = H P (= (P H^T)^T for symmetric P): axpys along the contiguous rows of P
-    for r in range(m):
-        out = HP[r]
-        out[:] = 0.0
-        for a in range(n):
-            c = H[r, a]
-            if c != 0.0:  # the network's H is block-sparse in its output layer
-                row = P[a]
-                for b in range(n):
-                    out[b] += c * row[b]
+    # M^T = H P (= (P H^T)^T for symmetric P)
+    _h_times_p(H, P, HP)
     S = np.empty((m, m))
     for r in range(m):
         for s in range(m):
@@ -136,17 +128,88 @@ def joseph_update(x, P, H, innovation, R, work):
         Kr = Kt[r]
         for b in range(n):
             x[b] += Kr[b] * c
-    # P += D K^T + K D^T, row by row (full rows vectorise better than upper-triangle ones)
-    for a in range(n):
+    _symmetric_rank_update(P, Kt, Dt)
+    return nis
+
+
+@njit
+def _h_times_p(H, P, HP):
+    """``HP = H P``, (m, n), as axpys of the contiguous rows of ``P``, in place.
+
+    Each ``HP[r, b]`` is the sum over ``a = 0 .. n-1`` in that order of ``H[r, a] P[a, b]``,
+    skipping the zero ``H[r, a]`` (the network's ``H`` is block-sparse in its output layer).  For
+    ``m = 3``, where two consecutive columns of ``H`` have no zero, the three outputs take both
+    rows of ``P`` in one pass over ``HP`` (same sums, same order: bit-identical, test_ekf).
+    """
+    m, n = HP.shape
+    HP[:, :] = 0.0
+    a = 0
+    while a < n:
+        if (m == 3 and a + 1 < n and H[0, a] != 0.0 and H[1, a] != 0.0 and H[2, a] != 0.0
+                and H[0, a + 1] != 0.0 and H[1, a + 1] != 0.0 and H[2, a + 1] != 0.0):  # fmt: skip
+            c0, c1, c2 = H[0, a], H[1, a], H[2, a]
+            g0, g1, g2 = H[0, a + 1], H[1, a + 1], H[2, a + 1]
+            p1, p2 = P[a], P[a + 1]
+            h0, h1, h2 = HP[0], HP[1], HP[2]
+            for b in range(n):
+                v = p1[b]
+                w = p2[b]
+                h0[b] = h0[b] + c0 * v + g0 * w
+                h1[b] = h1[b] + c1 * v + g1 * w
+                h2[b] = h2[b] + c2 * v + g2 * w
+            a += 2
+            continue
         row = P[a]
         for r in range(m):
-            d_a = Dt[r, a]
-            k_a = Kt[r, a]
-            Kr = Kt[r]
-            Dr = Dt[r]
-            for b in range(n):
-                row[b] += d_a * Kr[b] + k_a * Dr[b]
-    return nis
+            c = H[r, a]
+            if c != 0.0:
+                out = HP[r]
+                for b in range(n):
+                    out[b] += c * row[b]
+        a += 1
+
+
+@njit
+def _symmetric_rank_update(P, Kt, Dt):
+    """``P += D K^T + K D^T`` in place, ``Kt``, ``Dt`` of shape (m, n), ``m`` small.
+
+    Entry ``(a, b)`` becomes ``P[a, b] + t_0 + t_1 + ...`` (left to right) with
+    ``t_r = D[a, r] K[b, r] + K[a, r] D[b, r]``; ``t_r`` is the same IEEE number at ``(b, a)``, so
+    a symmetric ``P`` stays exactly symmetric.  Full rows, not the upper triangle: mirroring a
+    triangle costs more in strided stores than the multiplications it saves (measured).  The
+    ``m = 3`` case is written out and does two rows per pass, so each ``K``, ``D`` element loaded
+    serves both; the arithmetic is the same, so the result is bit-identical (test_ekf).
+    """
+    m, n = Kt.shape
+    if m != 3:
+        for a in range(n):
+            row = P[a]
+            for r in range(m):
+                d_a = Dt[r, a]
+                k_a = Kt[r, a]
+                Kr = Kt[r]
+                Dr = Dt[r]
+                for b in range(n):
+                    row[b] += d_a * Kr[b] + k_a * Dr[b]
+        return
+    K0, K1, K2 = Kt[0], Kt[1], Kt[2]
+    D0, D1, D2 = Dt[0], Dt[1], Dt[2]
+    a = 0
+    while a + 1 < n:  # rows a and a + 1
+        r1, r2 = P[a], P[a + 1]
+        d0, d1, d2, k0, k1, k2 = D0[a], D1[a], D2[a], K0[a], K1[a], K2[a]
+        e0, e1, e2, l0, l1, l2 = D0[a + 1], D1[a + 1], D2[a + 1], K0[a + 1], K1[a + 1], K2[a + 1]
+        for b in range(n):
+            x0, x1, x2, y0, y1, y2 = K0[b], K1[b], K2[b], D0[b], D1[b], D2[b]
+            r1[b] = r1[b] + (d0 * x0 + k0 * y0) + (d1 * x1 + k1 * y1) + (d2 * x2 + k2 * y2)
+            r2[b] = r2[b] + (e0 * x0 + l0 * y0) + (e1 * x1 + l1 * y1) + (e2 * x2 + l2 * y2)
+        a += 2
+    if a < n:  # the last row when n is odd
+        r1 = P[a]
+        d0, d1, d2, k0, k1, k2 = D0[a], D1[a], D2[a], K0[a], K1[a], K2[a]
+        for b in range(n):
+            r1[b] = (r1[b] + (d0 * K0[b] + k0 * D0[b]) + (d1 * K1[b] + k1 * D1[b])
+                     + (d2 * K2[b] + k2 * D2[b]))  # fmt: skip
 
 
 @njit
@@ -284,7 +347,17 @@ def pose_predict(q_hat, P, u, dt, integrator, Qp):
     """Pose-filter prediction, in place: ``q_hat <- step(q_hat, u)``, ``P <- F P F^T + Qp``."""
     F, _ = step_jacobians(q_hat, u, dt, integrator)
     q_hat[:] = step(q_hat, u, dt, integrator)
-    P[:, :] = F @ P @ F.T + Qp
+    # written out: a 3 x 3 product needs no BLAS call, whose rounding would depend on the
+    # machine's BLAS kernel; the upper triangle is mirrored, so P stays exactly symmetric
+    FP = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            FP[i, j] = F[i, 0] * P[0, j] + F[i, 1] * P[1, j] + F[i, 2] * P[2, j]
+    for i in range(3):
+        for j in range(i, 3):
+            v = FP[i, 0] * F[j, 0] + FP[i, 1] * F[j, 1] + FP[i, 2] * F[j, 2] + Qp[i, j]
+            P[i, j] = v
+            P[j, i] = v
 
 
 @njit

@@ -162,6 +162,19 @@ def step(q, u, dt, integrator=EXACT):
 
 
 @njit
+def _matmul(A, B):
+    """``A @ B`` for the small matrices of this module, written out: no BLAS call, whose
+    rounding would depend on the machine's BLAS kernel (determinism across machines)."""
+    out = np.zeros((A.shape[0], B.shape[1]))
+    for i in range(A.shape[0]):
+        for k in range(A.shape[1]):
+            a = A[i, k]
+            for j in range(B.shape[1]):
+                out[i, j] += a * B[k, j]
+    return out
+
+
+@njit
 def step_jacobians(q, u, dt, integrator=EXACT):
     """Jacobians of :func:`step`: ``F = dq+/dq`` (3, 3) and ``G = dq+/du`` (3, 2).
 
@@ -226,8 +239,8 @@ def step_jacobians(q, u, dt, integrator=EXACT):
             _rhs_jacobians(qi, u, A, B)
             dqi_dq = eye + ci * dk_dq
             dqi_du = ci * dk_du
-            dk_dq = A @ dqi_dq
-            dk_du = A @ dqi_du + B
+            dk_dq = _matmul(A, dqi_dq)
+            dk_du = _matmul(A, dqi_du) + B
             k = unicycle_rhs(qi, u)
             Fq += weights[i] * dk_dq
             Fu += weights[i] * dk_du

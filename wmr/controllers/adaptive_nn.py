@@ -111,7 +111,9 @@ def adapt(p, s, W, P, q_hat, ref, dt):
         if s[_S_SAT + c] != 0.0:
             p.Hn[c, :] = 0.0
     _, G = step_jacobians(s[_S_Q : _S_Q + 3], s[_S_U : _S_U + 2], dt, p.integrator)
-    p.H[:, :] = G @ p.Hn
+    for i in range(3):  # H = G Hn, written out (no BLAS call in the loop)
+        for b in range(p.H.shape[1]):
+            p.H[i, b] = G[i, 0] * p.Hn[0, b] + G[i, 1] * p.Hn[1, b]
     innovation = np.empty(3)
     innovation[0] = ref[0] - q_hat[0]
     innovation[1] = ref[1] - q_hat[1]

@@ -108,7 +108,7 @@ def identify(p, s, W, P, q_hat, dt):
         d[i] = (q_hat[i] - s[S_Q + i]) / dt
     d[2] = wrap_angle(q_hat[2] - s[S_Q + 2]) / dt
     innovation = d - z
-    s[S_NN_ERR] = math.sqrt(innovation @ innovation)
+    s[S_NN_ERR] = math.sqrt(innovation[0] ** 2 + innovation[1] ** 2 + innovation[2] ** 2)
     nn.weight_jacobian(W, x, p.nn_n_h, N_OUT, h, p.H)
     nis = weight_update(W, P, p.H, innovation, p.q_diag, p.R, p.work)
     # a failed update (S not positive definite: NaN NIS, nothing changed) counts like a repair

@@ -213,7 +213,9 @@ def sgd_gain_step(p, s, J, e, theta):
     ge = np.empty(3)  # Gamma e
     for i in range(3):
         ge[i] = p.alpha[i] * e[i]
-    te = T.T @ ge  # T_e^T Gamma e, (3,)
+    te = np.empty(3)  # T_e^T Gamma e, written out (no BLAS call in the loop)
+    for j in range(3):
+        te[j] = T[0, j] * ge[0] + T[1, j] * ge[1] + T[2, j] * ge[2]
     g0 = J[0, 0] * te[0] + J[1, 0] * te[1] + J[2, 0] * te[2]  # (J^T T_e^T Gamma e)_v
     g1 = J[0, 1] * te[0] + J[1, 1] * te[1] + J[2, 1] * te[2]  # (...)_w
     phi = s[S_PHI : S_PHI + 6]
