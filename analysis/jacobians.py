@@ -1003,7 +1003,10 @@ def _notes(summary: dict) -> list[str]:
             "The over-scaled Jacobian comes with the noise; this is consistent with a "
             "closed-loop identification bias (the noise in q_hat_k enters both the input "
             "u_k, through the controller, and the target (q_hat_{k+1} - q_hat_k)/dt, so "
-            "the regression of target on input is biased).  Without noise the w column is "
+            "the regression of target on input is biased).  A second path runs through the "
+            "pose EKF: its targets q_hat are filtered with the same unicycle model and the "
+            "commanded input, so the identifier partly learns the filter's prediction rather "
+            "than the plant (this is not separated here).  Without noise the w column is "
             "learned well and the v column poorly (the speed barely varies: little "
             "excitation)."
         )

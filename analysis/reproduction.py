@@ -186,11 +186,50 @@ def _ranking(table: dict, scenario: str, names, variant_of: dict | None = None) 
     return ranks
 
 
+#: Family-wise error rate of the tie-aware ranking check (Holm over the pairs of one axis).
+ALPHA = 0.05
+
+
+def _holm(pvalues: list[float]) -> list[float]:
+    """Holm-Bonferroni adjusted p-values (step-down, monotone), in the input order."""
+    m = len(pvalues)
+    order = sorted(range(m), key=lambda i: pvalues[i])
+    adjusted = [1.0] * m
+    running = 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (m - rank) * pvalues[i]))
+        adjusted[i] = running
+    return adjusted
+
+
+def _contradictions(paper_order: list[str], paired: dict, axis: str,
+                    alpha: float = ALPHA) -> list[dict]:  # fmt: skip
+    """Pairs the paper orders ``a`` before ``b`` where our runs make ``b`` significantly better.
+
+    Tie-aware: a pair whose means merely swap without a significant paired difference does not
+    contradict the paper.  Two-sided Wilcoxon signed-rank p-values of every pair of the axis,
+    Holm-adjusted together (family-wise error ``alpha``); ``b`` is significantly better when
+    its mean is lower and the adjusted p is below ``alpha``.
+    """
+    pairs = []
+    for i, a in enumerate(paper_order):
+        for b in paper_order[i + 1 :]:
+            key, sign = (f"{a} vs {b}", 1.0) if f"{a} vs {b}" in paired else (f"{b} vs {a}", -1.0)
+            r = paired[key][axis]
+            if r.get("n"):
+                pairs.append((a, b, sign * r["mean_diff"], r["wilcoxon_p"]))
+    adjusted = _holm([p for *_, p in pairs])
+    return [{"paper_better": a, "paper_worse": b, "mean_diff": d, "p_holm": q}
+            for (a, b, d, _), q in zip(pairs, adjusted, strict=True)
+            if d > 0 and q < alpha]  # fmt: skip
+
+
 def summarise(rows: list[Row]) -> dict:
     """Statistics, rankings and paired comparisons, as stored in ``reproduction.json``."""
     table = _table(rows)
     scenarios = sorted({k[0] for k in table}, key=list(PAPER_RMSE).index)
-    out: dict = {"scenarios": {}, "variants": {v: d for v, (_, _, d) in VARIANTS.items()}}
+    out: dict = {"scenarios": {}, "variants": {v: d for v, (_, _, d) in VARIANTS.items()},
+                 "alpha": ALPHA}  # fmt: skip
     for sc in scenarios:
         names = [n for n in controllers.NAMES if (sc, n, "default") in table]
         paper_names = [n for n in controllers.PAPER_NAMES if n in names]
@@ -216,6 +255,11 @@ def summarise(rows: list[Row]) -> dict:
             entry["paired"][f"{a} vs {b}"] = {
                 axis: _paired(table[(sc, a, "default")][axis], table[(sc, b, "default")][axis])
                 for axis in (*AXES, "position", "tail_position")
+            }
+        if set(paper_names) == set(paper):
+            entry["paper_ranking_contradicted"] = {
+                axis: _contradictions(entry["paper_ranking"][axis], entry["paired"], axis)
+                for axis in AXES
             }
         for variant, (applies, _, _) in VARIANTS.items():
             changed = {n: variant for n in applies if (sc, n, variant) in table and n in paper_names}

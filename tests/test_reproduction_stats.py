@@ -53,3 +53,28 @@ def test_a_diverging_controller_ranks_last_and_is_counted():
     assert out["ranking"]["default"]["position"][-1] == "iapid-nn-dekf"
     assert out["runs"]["iapid-nn-dekf"]["default"]["n_diverged"] == 1
     assert out["runs"]["iapid-nn-dekf"]["default"]["position"]["n"] == 2
+
+
+def test_holm_adjustment_matches_the_step_down_definition():
+    p = [0.01, 0.04, 0.03, 0.005]
+    # sorted 0.005, 0.01, 0.03, 0.04 -> 4*0.005, 3*0.01, 2*0.03, 1*0.04, made monotone
+    assert rep._holm(p) == pytest.approx([0.03, 0.06, 0.06, 0.02])
+    assert rep._holm([0.5, 0.9]) == pytest.approx([1.0, 1.0])  # capped at 1
+
+
+def test_tie_aware_check_ignores_noise_and_flags_significant_reversals():
+    """Paper order IAPID < APID < DA-NN < BSC.  Here BSC is clearly best on every seed (a
+    significant reversal of three pairs), while IAPID and APID swap by pure noise."""
+    rng = np.random.default_rng(0)
+    seeds = range(20)
+    noise = {s: rng.normal(0, 0.01) for s in seeds}
+    rows = [_row("iapid-nn-dekf", s, 0.30 + noise[s] + rng.normal(0, 0.02)) for s in seeds]
+    rows += [_row("adaptive-pid", s, 0.30 + noise[s] + rng.normal(0, 0.02)) for s in seeds]
+    rows += [_row("adaptive-nn", s, 0.40 + noise[s]) for s in seeds]
+    rows += [_row("backstepping", s, 0.10 + noise[s]) for s in seeds]
+    out = rep.summarise(rows)["scenarios"]["lemniscate"]
+    flagged = {(c["paper_worse"], c["paper_better"]) for c in out["paper_ranking_contradicted"]["x"]}
+    assert flagged == {("backstepping", "iapid-nn-dekf"), ("backstepping", "adaptive-pid"),
+                       ("backstepping", "adaptive-nn")}  # fmt: skip
+    assert all(c["p_holm"] < rep.ALPHA and c["mean_diff"] > 0
+               for c in out["paper_ranking_contradicted"]["x"])  # fmt: skip

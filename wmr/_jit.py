@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import hashlib
 import os
+import shutil
 from pathlib import Path
 
 import numba
 
-__all__ = ["njit", "CACHE_DIR"]
+__all__ = ["njit", "CACHE_DIR", "KEEP_OLD_CACHES"]
 
 
 def _cache_dir() -> str:
@@ -32,8 +33,29 @@ def _cache_dir() -> str:
     return str(package / "__pycache__" / f"numba-{digest.hexdigest()[:16]}")
 
 
+#: Caches of earlier versions of the source kept beside the current one (the newest first).
+KEEP_OLD_CACHES = 3
+
+
+def _prune_old_caches(current: str, keep: int = KEEP_OLD_CACHES) -> None:
+    """Remove all but the ``keep`` most recently modified ``numba-*`` folders other than
+    ``current`` (each edit of the source leaves one behind; only the package's own folder is
+    touched, never a user-set ``NUMBA_CACHE_DIR``).  Errors are ignored: another process may
+    be pruning too."""
+    here = Path(current)
+    try:
+        old = [p for p in here.parent.glob("numba-*") if p.is_dir() and p != here]
+        old.sort(key=lambda p: p.stat().st_mtime, reverse=True)
+    except OSError:
+        return
+    for path in old[keep:]:
+        shutil.rmtree(path, ignore_errors=True)
+
+
 CACHE_DIR = _cache_dir()
 numba.config.CACHE_DIR = CACHE_DIR
+if not os.environ.get("NUMBA_CACHE_DIR"):
+    _prune_old_caches(CACHE_DIR)
 
 
 def njit(fn=None, **kwargs):
