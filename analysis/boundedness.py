@@ -52,8 +52,8 @@ loaded machine; ``--quick`` instruments every 20th step with 8 seeds).
 
 from __future__ import annotations
 
-import dataclasses
 import argparse
+import dataclasses
 import math
 import time
 from concurrent.futures import ProcessPoolExecutor

@@ -85,7 +85,8 @@ def _cli(argv: list[str]) -> tuple[int, str]:
 
 
 def bad_inputs() -> dict:
-    """Every malformed scenario and bad option through the CLI: exit 2, one line, nothing written."""
+    """Every malformed scenario and bad option through the CLI: exit 2, one line, nothing
+    written."""
     outcomes = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp_path = Path(tmp)
@@ -105,7 +106,8 @@ def bad_inputs() -> dict:
             outcomes.append({"input": what, "exit_code": code, "one_line": len(lines) == 1,
                              "starts_with_error": bool(lines) and lines[0].startswith("error: "),
                              "traceback": "Traceback" in err, "wrote_output": written,
-                             "message": lines[0].replace(tmp, "<tmp>") if lines else ""})  # fmt: skip
+                             "message": lines[0].replace(tmp, "<tmp>") if lines else "",
+                             })  # fmt: skip
     good = [o for o in outcomes if o["exit_code"] == 2 and o["one_line"] and
             o["starts_with_error"] and not o["traceback"] and not o["wrote_output"]]  # fmt: skip
     return {"tried": len(outcomes), "as_expected": len(good), "cases": outcomes}
@@ -162,8 +164,9 @@ def fault_injection() -> dict:
     # 1. a covariance with a negative diagonal entry is repaired and counted
     P = np.eye(4)
     P[2, 2] = -1.0
-    res["negative_covariance_diagonal"] = {"repaired": bool(repair_covariance(P, 1e-12)),
-                                           "positive_definite_after": bool(np.all(np.linalg.eigvalsh(P) > 0))}  # fmt: skip
+    repaired = bool(repair_covariance(P, 1e-12))
+    res["negative_covariance_diagonal"] = {
+        "repaired": repaired, "positive_definite_after": bool(np.all(np.linalg.eigvalsh(P) > 0))}
     # 2. a controller whose output overflows: the run stops with a non-finite cause
     from wmr.controllers import backstepping
 
@@ -207,8 +210,10 @@ def main(out: str | Path = "paper", hours: float = 1.0) -> dict:
     bi = result["bad_inputs"]
     result["summary"] = {
         "bad_inputs_tried": bi["tried"], "bad_inputs_as_expected": bi["as_expected"],
-        "long_runs_finite": all(v["finite"] and not v["diverged"] for v in result["long_runs"].values()),
-        "seam_no_divergence": all(not v["diverged"] for k, v in result["seam"].items() if isinstance(v, dict)),
+        "long_runs_finite": all(v["finite"] and not v["diverged"]
+                                for v in result["long_runs"].values()),
+        "seam_no_divergence": all(not v["diverged"] for k, v in result["seam"].items()
+                                  if isinstance(v, dict)),
         "serial_equals_parallel": result["determinism"]["serial_equals_parallel"],
         "saturation_respected": all(result["faults"]["saturation_respected"].values()),
     }  # fmt: skip

@@ -53,8 +53,10 @@ def _assumptions() -> list[str]:
     d = per.disturbances[0]
     rows = [
         ("sample period dt", f"{lem.dt} s", "Kanayama (1990) and related work use 10 ms"),
-        ("run length", f"{lem.duration} s", "must cover the 15-20 s perturbation; one lemniscate loop"),
-        ("plant integration", lem.integrator, "zero-order hold, exact arc (no discretisation error)"),
+        ("run length", f"{lem.duration} s",
+         "must cover the 15-20 s perturbation; one lemniscate loop"),
+        ("plant integration", lem.integrator,
+         "zero-order hold, exact arc (no discretisation error)"),
         ("lemniscate", f"Gerono, size {lem.reference.params['size']} m, period "
          f"{lem.reference.params['period']} s", "formula not given; passes through the origin"),
         ("sinusoid", f"x = {sin.reference.params['speed']} t, y = "
@@ -87,10 +89,11 @@ def _assumptions() -> list[str]:
 
 def _reproduction(out: Path, rep: dict) -> list[str]:
     lines = ["## Tables 1–3: the paper beside this reproduction", "",
-             f"Mean ± std over {rep['seeds']} seeds (common random numbers: all controllers see the "
-             "same noise for a seed); RMSE of eq. 64 over the true poses, θ wrapped; ratio = ours / "
-             "paper.  Pose each controller acts on (as in the paper, only the proposed scheme "
-             "localises; the `pose-filtered` / `pose-raw` ablations give everyone the same): "
+             f"Mean ± std over {rep['seeds']} seeds (common random numbers: all controllers "
+             "see the same noise for a seed); RMSE of eq. 64 over the true poses, θ wrapped; "
+             "ratio = ours / paper.  Pose each controller acts on (as in the paper, only the "
+             "proposed scheme localises; the `pose-filtered` / `pose-raw` ablations give "
+             "everyone the same): "
              + ", ".join(f"{_label(n)} {src}" for n, src in
                          next(iter(rep["pose_source"].values())).items()) + ".", ""]  # fmt: skip
     for num in (1, 2, 3):
@@ -98,12 +101,14 @@ def _reproduction(out: Path, rep: dict) -> list[str]:
         if table.exists():
             lines += table.read_text().splitlines() + [""]
     lines += ["## Does the paper's ranking appear?", ""]
-    reproduced = [v for e in rep["scenarios"].values() for v in e["paper_ranking_reproduced"].values()]
+    reproduced = [v for e in rep["scenarios"].values()
+                  for v in e["paper_ranking_reproduced"].values()]
     best = {sc: e["ranking"]["default"]["position"][0] for sc, e in rep["scenarios"].items()}
     n_best = sum(1 for b in best.values() if b == "iapid-nn-dekf")
     lines += [f"**Verdict.** The paper's order of the four controllers is reproduced on "
-              f"{sum(reproduced)} of {len(reproduced)} (scenario, axis) pairs.  IAPID-NN-DEKF has the "
-              f"lowest mean position RMSE in {n_best} of {len(best)} scenarios (best: "
+              f"{sum(reproduced)} of {len(reproduced)} (scenario, axis) pairs.  "
+              f"IAPID-NN-DEKF has the lowest mean position RMSE in {n_best} of {len(best)} "
+              "scenarios (best: "
               + ", ".join(f"{sc}: {_label(b)}" for sc, b in best.items()) + ").", ""]  # fmt: skip
     contra = {(sc, axis): c for sc, e in rep["scenarios"].items()
               for axis, c in e.get("paper_ranking_contradicted", {}).items()}  # fmt: skip
@@ -131,7 +136,8 @@ def _reproduction(out: Path, rep: dict) -> list[str]:
                for g in ("Kpv", "Kiv", "Kpw", "Kiw")}  # fmt: skip
         kd = max(r["max_abs"][g] for d in exc.values() for r in d.values() for g in ("Kdv", "Kdw"))
         inert = max(rel.values()) < 0.1 and kd < 0.5
-        lines += [f"**{'Adaptation barely acts' if inert else 'Gain adaptation'}.** Over a run (seed 0, every scenario) SGD moves the "
+        title = "Adaptation barely acts" if inert else "Gain adaptation"
+        lines += [f"**{title}.** Over a run (seed 0, every scenario) SGD moves the "
                   f"proportional and integral gains by at most "
                   + ", ".join(f"{g} {100 * v:.1f} %" for g, v in rel.items())
                   + f"; the derivative gains start at 0 and reach {kd:.3f} (E5d: measurement "
@@ -160,9 +166,9 @@ def _reproduction(out: Path, rep: dict) -> list[str]:
         tail = " < ".join(_label(n) for n in ours["tail_position"])
         lines.append(f"- position RMSE after the transient (t ≥ {rep['transient_s']:g} s): {tail}")
         lines.append("")
-    lines += [f"Position RMSE [m] after the transient (t ≥ {rep['transient_s']:g} s), mean ± std; in "
-              "brackets the share of the full-run figure that remains (a small share: the "
-              "initial pose error dominated it; near 1: a steady tracking error):", "",
+    lines += [f"Position RMSE [m] after the transient (t ≥ {rep['transient_s']:g} s), "
+              "mean ± std; in brackets the share of the full-run figure that remains (a small "
+              "share: the initial pose error dominated it; near 1: a steady tracking error):", "",
               "| scenario | " + " | ".join(_label(n) for n in controllers.NAMES) + " |",
               "|---|" + "---|" * len(controllers.NAMES)]  # fmt: skip
     for sc, entry in rep["scenarios"].items():
@@ -186,7 +192,8 @@ def _reproduction(out: Path, rep: dict) -> list[str]:
             if r.get("n"):
                 a, b = pair.split(" vs ")
                 lines.append(f"| {sc} | {_label(a)} vs {_label(b)} | {_f(r['mean_diff'])} | "
-                             f"{_f(r['std_diff'])} | {r['wins']}/{r['n']} | {_f(r['wilcoxon_p'], 3)} |")
+                             f"{_f(r['std_diff'])} | {r['wins']}/{r['n']} "
+                             f"| {_f(r['wilcoxon_p'], 3)} |")
     lines += ["", "## Ablations and sensitivities", "",
               "Position RMSE, mean ± std over seeds, per variant (— : not applicable):", ""]
     variants = ["default", *rep["variants"]]
@@ -255,7 +262,8 @@ def _errata(out: Path) -> list[str]:
     bands = [bnd[sc]["nees_bounds"] for sc in bnd]
     dt = scn.load(scn.builtin("lemniscate")).dt
     rows = [
-        ("E1, E2", "eq. 2 uses v, eq. 3 has w_r − w", "references from v_r, w_r; e3 = wrap(θ_r − θ)",
+        ("E1, E2", "eq. 2 uses v, eq. 3 has w_r − w",
+         "references from v_r, w_r; e3 = wrap(θ_r − θ)",
          "by construction (tests: references vs finite differences)"),
         ("E3", "rotation of eqs. 4/6 has row [sin θ, cos θ, 0]",
          "row [−sin θ, cos θ, 0]; printed form behind printed_rotation",
@@ -323,7 +331,8 @@ def _reliability(data: dict) -> list[str]:
         msg = c["message"].replace("|", "\\|")
         msg = msg if len(msg) < 110 else msg[:107] + "..."
         lines.append(f"| {c['input']} | {c['exit_code']} | `{msg}` |")
-    lines += ["", "Long runs (one simulated hour, no trajectory kept; memory traced by tracemalloc):", "",
+    lines += ["", "Long runs (one simulated hour, no trajectory kept; memory traced by "
+              "tracemalloc):", "",
               "| controller | steps | finite | position RMSE [m] | wall [s] | peak MB (2 chunks) | "
               "peak MB (1 h) |", "|---|---|---|---|---|---|---|"]  # fmt: skip
     for name, v in data["long_runs"].items():
@@ -345,8 +354,9 @@ def _reliability(data: dict) -> list[str]:
               f"{_f(f['overflowing_controller']['diverged_at'], 2)} s "
               f"({f['overflowing_controller']['cause']});",
               "- pose noise std (5 m, 5 m, 3 rad) with a 2 m divergence bound: "
-              + "; ".join(f"{_label(k)} " + (f"diverged at {_f(v['diverged_at'], 2)} s ({v['cause']})"
-                          if v["diverged"] else "did not diverge")
+              + "; ".join(f"{_label(k)} "
+                          + (f"diverged at {_f(v['diverged_at'], 2)} s ({v['cause']})"
+                             if v["diverged"] else "did not diverge")
                           for k, v in f["huge_noise"].items() if k != "control run")
               + "; the next run of the same study completed normally.", ""]  # fmt: skip
     return lines

@@ -66,7 +66,8 @@ def _with(settings, **changes):
 
 def _pose_source(source: str):
     def apply(sc, st):
-        return dataclasses.replace(sc, estimator=dataclasses.replace(sc.estimator, pose_source=source)), st
+        estimator = dataclasses.replace(sc.estimator, pose_source=source)
+        return dataclasses.replace(sc, estimator=estimator), st
 
     return apply
 
@@ -262,7 +263,8 @@ def summarise(rows: list[Row]) -> dict:
                 for axis in AXES
             }
         for variant, (applies, _, _) in VARIANTS.items():
-            changed = {n: variant for n in applies if (sc, n, variant) in table and n in paper_names}
+            changed = {n: variant for n in applies
+                       if (sc, n, variant) in table and n in paper_names}
             if changed:
                 entry["ranking"][variant] = _ranking(table, sc, paper_names, changed)
         out["scenarios"][sc] = entry

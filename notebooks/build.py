@@ -42,10 +42,12 @@ def _cells(source: str):
 def build(name: str) -> Path:
     src = (HERE / "src" / f"{name}.py").read_text()
     nb = nbformat.v4.new_notebook()
-    nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
+    nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3",
+                                 "language": "python"}
     nb.cells.append(nbformat.v4.new_code_cell(SETUP))
     for kind, text in _cells(src):
-        cell = nbformat.v4.new_markdown_cell(text) if kind == "md" else nbformat.v4.new_code_cell(text)
+        new = nbformat.v4.new_markdown_cell if kind == "md" else nbformat.v4.new_code_cell
+        cell = new(text)
         nb.cells.append(cell)
     for i, cell in enumerate(nb.cells):
         cell["id"] = f"{name[:2]}-{i:02d}"

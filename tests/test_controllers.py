@@ -32,8 +32,9 @@ def _euler_scenario(sc):
 
 
 def test_sgd_step_equals_collapsed_form_with_analytic_jacobian():
-    """With J = dt G(theta) and the corrected rotation at the same theta, T_e J = dt [[1,0],[0,0],[0,1]],
-    so dK_v = mu dt a1 e1 phi_v and dK_w = mu dt a3 e3 phi_w (notes §4.3): e2 and alpha2 drop out."""
+    """With J = dt G(theta) and the corrected rotation at the same theta,
+    T_e J = dt [[1,0],[0,0],[0,1]], so dK_v = mu dt a1 e1 phi_v and dK_w = mu dt a3 e3 phi_w
+    (notes §4.3): e2 and alpha2 drop out."""
     rng = np.random.default_rng(0)
     settings = pid.Settings(mu=(0.9, 0.5, 0.3, 0.7, 0.2, 0.1), alpha=(1.3, 7.0, 0.6),
                             gains=(5.0, 5.0, 0.5, 10.0, 2.0, 0.5))  # fmt: skip

@@ -1,4 +1,5 @@
-"""EKF: the O(n^2 m) Joseph update vs the literal form, linear-KF equivalence, pose-filter NEES/NIS."""
+"""EKF: the O(n^2 m) Joseph update vs the literal form, bit-exact fused kernels, linear-KF
+equivalence, pose-filter NEES/NIS."""
 
 from __future__ import annotations
 
@@ -29,7 +30,8 @@ def test_fast_weight_update_equals_the_literal_joseph_form(n):
         R = _spd(rng, 3)
         theta_ref, P_ref = ekf.weight_update_reference(theta, P, H, nu, q, R)
         ekf.weight_update(theta, P, H, nu, q, R, np.empty((3, 3, n)))
-        np.testing.assert_allclose(theta, theta_ref, rtol=REL_TOL, atol=REL_TOL * np.abs(theta_ref).max())
+        np.testing.assert_allclose(theta, theta_ref, rtol=REL_TOL,
+                                   atol=REL_TOL * np.abs(theta_ref).max())
         np.testing.assert_allclose(P, P_ref, atol=REL_TOL * np.abs(P_ref).max())
         np.testing.assert_array_equal(P, P.T)
 

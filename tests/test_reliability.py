@@ -35,12 +35,14 @@ def test_heading_seam_is_crossed_every_turn_without_trouble():
 
 def test_faults_are_repaired_or_reported_and_saturation_holds():
     res = reliability.fault_injection()
-    assert res["negative_covariance_diagonal"] == {"repaired": True, "positive_definite_after": True}
+    expected = {"repaired": True, "positive_definite_after": True}
+    assert res["negative_covariance_diagonal"] == expected
     assert res["overflowing_controller"]["diverged"]
     assert res["overflowing_controller"]["cause"] == "non-finite value"
     for name in controllers.NAMES:  # every run is reported; a divergence names its cause
         rec = res["huge_noise"][name]
-        assert rec["cause"] in (None, "position error exceeded divergence_bound", "non-finite value")
+        assert rec["cause"] in (None, "position error exceeded divergence_bound",
+                                "non-finite value")
         assert rec["diverged"] == (rec["cause"] is not None)
     assert not res["huge_noise"]["control run"]["diverged"]  # the study went on
     assert all(res["saturation_respected"].values())

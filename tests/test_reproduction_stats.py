@@ -73,7 +73,8 @@ def test_tie_aware_check_ignores_noise_and_flags_significant_reversals():
     rows += [_row("adaptive-nn", s, 0.40 + noise[s]) for s in seeds]
     rows += [_row("backstepping", s, 0.10 + noise[s]) for s in seeds]
     out = rep.summarise(rows)["scenarios"]["lemniscate"]
-    flagged = {(c["paper_worse"], c["paper_better"]) for c in out["paper_ranking_contradicted"]["x"]}
+    contra = out["paper_ranking_contradicted"]["x"]
+    flagged = {(c["paper_worse"], c["paper_better"]) for c in contra}
     assert flagged == {("backstepping", "iapid-nn-dekf"), ("backstepping", "adaptive-pid"),
                        ("backstepping", "adaptive-nn")}  # fmt: skip
     assert all(c["p_holm"] < rep.ALPHA and c["mean_diff"] > 0

@@ -119,7 +119,8 @@ def _convert(key: str, value: Any, annotation: Any, default: Any) -> Any:
         check(isinstance(value, bool), key, value, "must be true or false")
         return value
     if annotation is int:
-        check(isinstance(value, int) and not isinstance(value, bool), key, value, "must be an integer")
+        is_int = isinstance(value, int) and not isinstance(value, bool)
+        check(is_int, key, value, "must be an integer")
         return value
     if annotation is float:
         return number(key, value)

@@ -49,7 +49,8 @@ def _controllers(requested: list[str] | None) -> list[str]:
     for name in requested:
         if name not in controllers.REGISTRY:
             raise UsageError(
-                f"--controller {name!r}: unknown controller (known: all, {', '.join(controllers.NAMES)})"
+                f"--controller {name!r}: unknown controller "
+                f"(known: all, {', '.join(controllers.NAMES)})"
             )
     return list(dict.fromkeys(requested))
 
@@ -189,7 +190,8 @@ def cmd_reproduce(args) -> int:
     bench = None if args.skip_bench else _study("performance")
     report = _study("report")
     stage = _staged(out)
-    print(f"reproduction: 3 scenarios x {args.seeds} seeds (+ ablations) on {args.workers or 'all'} workers")
+    print(f"reproduction: 3 scenarios x {args.seeds} seeds (+ ablations) "
+          f"on {args.workers or 'all'} workers")
     reproduction.main(stage, seeds=args.seeds, workers=args.workers)
     for name, module in studies:
         print(f"analysis: {name}")
@@ -234,7 +236,8 @@ def cmd_bench(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="wmr", description="Adaptive trajectory tracking of wheeled mobile robots.")
+    parser = _Parser(prog="wmr",
+                     description="Adaptive trajectory tracking of wheeled mobile robots.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     run = sub.add_parser("run", help="run a scenario file and write summary, trajectories, figure")
     run.add_argument("scenario", help="scenario TOML file")

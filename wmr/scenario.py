@@ -195,7 +195,8 @@ _TOP_KEYS = {
 
 def _build(data: Mapping[str, Any], source: str) -> Scenario:
     for key in data:
-        check(key in _TOP_KEYS, key, data[key], f"unknown key (known: {', '.join(sorted(_TOP_KEYS))})")
+        check(key in _TOP_KEYS, key, data[key],
+              f"unknown key (known: {', '.join(sorted(_TOP_KEYS))})")
     name = _require(data, "name", "")
     check(isinstance(name, str) and name.strip() != "", "name", name, "must be a non-empty string")
     # the name becomes a folder (``wmr run``'s default --out is wmr-runs/<name>)
@@ -207,7 +208,8 @@ def _build(data: Mapping[str, Any], source: str) -> Scenario:
     positive("dt", dt)
     check(dt <= duration, "dt", dt, f"must be <= duration = {duration}")
     steps = duration / dt
-    check(steps <= MAX_STEPS, "duration", duration, f"needs {steps:.3g} steps, more than {MAX_STEPS}")
+    check(steps <= MAX_STEPS, "duration", duration,
+          f"needs {steps:.3g} steps, more than {MAX_STEPS}")
     check(
         abs(steps - round(steps)) <= _STEP_TOL * max(1.0, steps),
         "duration",
@@ -240,7 +242,8 @@ def _build(data: Mapping[str, Any], source: str) -> Scenario:
     for key in ref:
         if key != "kind":
             check(key in KINDS[kind], f"reference.{key}", ref[key],
-                  f"unknown key for kind {kind!r} (known: kind, {', '.join(KINDS[kind])})")  # fmt: skip
+                  f"unknown key for kind {kind!r} "
+                  f"(known: kind, {', '.join(KINDS[kind])})")  # fmt: skip
     for key in KINDS[kind]:
         params[key] = number(f"reference.{key}", _require(ref, key, "reference."))
     for key in ("size", "period", "speed", "radius"):
@@ -312,6 +315,7 @@ def builtin(name: str) -> Path:
     """Path of a shipped scenario (``"lemniscate"``, ``"sinusoid"``, ``"sinusoid-perturbed"``)."""
     path = Path(str(resources.files("wmr") / "scenarios" / f"{name}.toml"))
     if not path.exists():
-        raise FileNotFoundError(f"no built-in scenario {name!r}; known: {', '.join(PAPER_SCENARIOS)}")
+        raise FileNotFoundError(
+            f"no built-in scenario {name!r}; known: {', '.join(PAPER_SCENARIOS)}")
     return path
 

@@ -198,7 +198,8 @@ def kernel(name: str, law):
     if key not in _KERNELS:
         template = _advance_template
         fn = types.FunctionType(template.__code__, {**template.__globals__, "law": law},
-                                f"_advance_{name}", template.__defaults__, template.__closure__)  # fmt: skip
+                                f"_advance_{name}", template.__defaults__,
+                                template.__closure__)  # fmt: skip
         fn.__qualname__ = f"_advance_{name.replace('-', '_')}"
         fn.__module__ = template.__module__
         fn.__doc__ = template.__doc__

@@ -27,7 +27,8 @@ ROW_HEADER = ("scenario", "controller", "variant", "seed", "rmse_x", "rmse_y", "
 
 @dataclass(frozen=True)
 class Job:
-    """One run: ``controller`` on ``scenario`` with ``settings`` (None: the scenario's) and ``seed``."""
+    """One run: ``controller`` on ``scenario`` with ``settings`` (None: the scenario's) and
+    ``seed``."""
 
     scenario: Scenario
     controller: str

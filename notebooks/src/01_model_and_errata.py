@@ -5,10 +5,11 @@
 # error frame of eqs. (4)/(6): the printed matrix is not a rotation (errata E3). All code is from
 # `wmr`; this notebook only calls it.
 # %%
+import dataclasses
+
 from wmr import kinematics as kin
 from wmr import scenario as scn
 from wmr.sim import simulate
-import dataclasses
 
 q0, u, T = np.array([0.0, 0.0, 0.3]), np.array([0.8, 0.6]), 2.0
 exact = q0.copy()

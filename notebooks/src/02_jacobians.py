@@ -10,8 +10,8 @@
 #
 # Relative error: ‖A − B‖_F / max(‖B‖_F, tiny), with B the AD value.
 # %%
-from wmr import scenario as scn
 from analysis import jacobians as jac
+from wmr import scenario as scn
 
 summary, raw = jac.point_study(points=200, seed=jac.SEED)
 for name, e in summary["unicycle_step"].items():

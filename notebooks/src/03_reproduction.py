@@ -5,10 +5,11 @@
 # the ablations, is `wmr reproduce`, whose tables are in `paper/tables/`). All controllers see
 # the same noise for a seed.
 # %%
-from wmr import controllers, scenario as scn
-from wmr.study import Job, run_jobs
-from wmr.sim import simulate
+from wmr import controllers
+from wmr import scenario as scn
 from wmr.plots import tracking_figure
+from wmr.sim import simulate
+from wmr.study import Job, run_jobs
 
 SEEDS = 5
 scenarios = {n: scn.load(scn.builtin(n)) for n in scn.PAPER_SCENARIOS}

@@ -8,6 +8,7 @@
 # for the pose EKF) is `wmr analyze boundedness`; its numbers are in `paper/report.md`.
 # %%
 import dataclasses
+
 from analysis import boundedness as bd
 from wmr import scenario as scn
 from wmr import stability

@@ -44,7 +44,8 @@ _S_SAT = 15  # 2: whether v, w were saturated at the previous step
 _S_SIZE = 17
 P_FLOOR = 1e-12
 
-Params = namedtuple("Params", "gains printed_rotation integrator n_h q_diag R Hn H work v_max w_max")
+Params = namedtuple(
+    "Params", "gains printed_rotation integrator n_h q_diag R Hn H work v_max w_max")
 
 
 @dataclass(frozen=True)

@@ -80,7 +80,8 @@ def pack(settings: Settings, scenario, rng):
     n = nn.n_weights(N_IN, settings.hidden, N_OUT)
     base = pid.make_params(settings, 2, scenario, n_h=settings.hidden,
                             printed_jacobian=settings.printed_jacobian,
-                            q_diag=np.full(n, settings.q), R=settings.r * np.eye(N_OUT))  # fmt: skip
+                            q_diag=np.full(n, settings.q),
+                            R=settings.r * np.eye(N_OUT))  # fmt: skip
     p = Params(*base, H=np.zeros((N_OUT, n)), work=np.zeros((3, N_OUT, n)))
     W = nn.init_weights(rng, N_IN, settings.hidden, N_OUT, settings.output_scale)
     P = settings.p0 * np.eye(n)
