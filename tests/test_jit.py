@@ -20,8 +20,21 @@ def test_prune_keeps_the_current_and_the_newest_old_caches(tmp_path):
     assert left == ["numba-00", "numba-04", "numba-05", "numba-06", "other"]
 
 
-def test_cache_dir_is_named_by_the_source_hash():
-    name = os.path.basename(_jit.CACHE_DIR)
-    if not os.environ.get("NUMBA_CACHE_DIR"):
-        assert name.startswith("numba-") and len(name) == len("numba-") + 16
-        assert os.path.dirname(_jit.CACHE_DIR).endswith(os.path.join("wmr", "__pycache__"))
+def test_cache_dir_changes_with_any_source_file_and_only_with_sources(tmp_path, monkeypatch):
+    """numba checks only a function's own file, so the folder must change when *any* module
+    changes (a callee edited in another file), and stay put otherwise."""
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    pkg = tmp_path / "pkg"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "a.py").write_text("x = 1\n")
+    (pkg / "sub" / "b.py").write_text("y = 2\n")
+    first = _jit._cache_dir(pkg)
+    assert first == str(pkg / "__pycache__" / os.path.basename(first))
+    assert os.path.basename(first).startswith("numba-")
+    (pkg / "notes.txt").write_text("not source")  # non-Python files do not count
+    assert _jit._cache_dir(pkg) == first
+    (pkg / "sub" / "b.py").write_text("y = 3\n")  # a callee in another module changed
+    second = _jit._cache_dir(pkg)
+    assert second != first
+    (pkg / "sub" / "b.py").write_text("y = 2\n")
+    assert _jit._cache_dir(pkg) == first  # same sources, same folder (deterministic)

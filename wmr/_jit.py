@@ -22,10 +22,11 @@ import numba
 __all__ = ["njit", "CACHE_DIR", "KEEP_OLD_CACHES"]
 
 
-def _cache_dir() -> str:
+def _cache_dir(package: Path | None = None) -> str:
+    """``NUMBA_CACHE_DIR`` if set, else ``<package>/__pycache__/numba-<hash of its sources>``."""
     if os.environ.get("NUMBA_CACHE_DIR"):
         return os.environ["NUMBA_CACHE_DIR"]
-    package = Path(__file__).resolve().parent
+    package = package or Path(__file__).resolve().parent
     digest = hashlib.sha256()
     for path in sorted(package.rglob("*.py")):
         digest.update(str(path.relative_to(package)).encode())

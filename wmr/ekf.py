@@ -181,35 +181,29 @@ def _symmetric_rank_update(P, Kt, Dt):
     serves both; the arithmetic is the same, so the result is bit-identical (test_ekf).
     """
     m, n = Kt.shape
-    if m != 3:
-        for a in range(n):
-            row = P[a]
-            for r in range(m):
-                d_a = Dt[r, a]
-                k_a = Kt[r, a]
-                Kr = Kt[r]
-                Dr = Dt[r]
-                for b in range(n):
-                    row[b] += d_a * Kr[b] + k_a * Dr[b]
-        return
-    K0, K1, K2 = Kt[0], Kt[1], Kt[2]
-    D0, D1, D2 = Dt[0], Dt[1], Dt[2]
     a = 0
-    while a + 1 < n:  # rows a and a + 1
-        r1, r2 = P[a], P[a + 1]
-        d0, d1, d2, k0, k1, k2 = D0[a], D1[a], D2[a], K0[a], K1[a], K2[a]
-        e0, e1, e2, l0, l1, l2 = D0[a + 1], D1[a + 1], D2[a + 1], K0[a + 1], K1[a + 1], K2[a + 1]
-        for b in range(n):
-            x0, x1, x2, y0, y1, y2 = K0[b], K1[b], K2[b], D0[b], D1[b], D2[b]
-            r1[b] = r1[b] + (d0 * x0 + k0 * y0) + (d1 * x1 + k1 * y1) + (d2 * x2 + k2 * y2)
-            r2[b] = r2[b] + (e0 * x0 + l0 * y0) + (e1 * x1 + l1 * y1) + (e2 * x2 + l2 * y2)
-        a += 2
-    if a < n:  # the last row when n is odd
-        r1 = P[a]
-        d0, d1, d2, k0, k1, k2 = D0[a], D1[a], D2[a], K0[a], K1[a], K2[a]
-        for b in range(n):
-            r1[b] = (r1[b] + (d0 * K0[b] + k0 * D0[b]) + (d1 * K1[b] + k1 * D1[b])
-                     + (d2 * K2[b] + k2 * D2[b]))  # fmt: skip
+    if m == 3:
+        K0, K1, K2 = Kt[0], Kt[1], Kt[2]
+        D0, D1, D2 = Dt[0], Dt[1], Dt[2]
+        while a + 1 < n:  # rows a and a + 1
+            r1, r2 = P[a], P[a + 1]
+            d0, d1, d2, k0, k1, k2 = D0[a], D1[a], D2[a], K0[a], K1[a], K2[a]
+            e0, e1, e2 = D0[a + 1], D1[a + 1], D2[a + 1]
+            l0, l1, l2 = K0[a + 1], K1[a + 1], K2[a + 1]
+            for b in range(n):
+                x0, x1, x2, y0, y1, y2 = K0[b], K1[b], K2[b], D0[b], D1[b], D2[b]
+                r1[b] = r1[b] + (d0 * x0 + k0 * y0) + (d1 * x1 + k1 * y1) + (d2 * x2 + k2 * y2)
+                r2[b] = r2[b] + (e0 * x0 + l0 * y0) + (e1 * x1 + l1 * y1) + (e2 * x2 + l2 * y2)
+            a += 2
+    for i in range(a, n):  # every row when m != 3; the last row when n is odd
+        row = P[i]
+        for r in range(m):
+            d_a = Dt[r, i]
+            k_a = Kt[r, i]
+            Kr = Kt[r]
+            Dr = Dt[r]
+            for b in range(n):
+                row[b] += d_a * Kr[b] + k_a * Dr[b]
 
 
 @njit
