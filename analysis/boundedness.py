@@ -72,7 +72,8 @@ from wmr.io import atomic_write_text, save_figure, write_json
 from wmr.kinematics import integrator_code, step, wrap_angle
 from wmr.references import ReferenceSampler
 from wmr.scenario import Scenario
-from wmr.sim import CHUNK, seed_sequences, simulate
+from wmr.loop import CHUNK, seed_sequences
+from wmr.sim import simulate
 from wmr.study import default_workers
 
 __all__ = [

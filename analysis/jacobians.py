@@ -487,7 +487,7 @@ def along_run(run, max_points: int | None = None) -> dict:
     q, u, q_hat, ref = run.q[idx], run.u[idx], run.q_hat[idx], run.ref[idx]
     dt = np.full(len(idx), run.dt)
     uni = unicycle_errors(UnicyclePoints(q, u, dt))
-    W = np.asarray(run.extra["W"], dtype=float)
+    W = np.asarray(run.final.theta, dtype=float)
     n_h = _hidden_units(W.size)
     x = np.array([identifier_input(u[i], q_hat[i, 2]) for i in range(len(idx))])
     net = network_errors(NetworkPoints(x.shape[1], n_h, N_OUT, np.tile(W, (len(idx), 1)), x))

@@ -59,7 +59,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wmr import controllers, nn, sim
+from wmr import controllers, loop, nn, sim
 from wmr import scenario as scn
 from wmr._jit import njit
 from wmr.controllers import iapid_nn_dekf
@@ -261,13 +261,13 @@ def _check_floor(prob) -> float:
 
 
 def _loop_setup(scenario, controller: str, seed: int):
-    """What ``wmr.sim.simulate`` sets up for one run, for a loop of at most ``sim.CHUNK`` steps."""
+    """What ``wmr.sim.simulate`` sets up for one run, for a loop of at most ``loop.CHUNK`` steps."""
     n = scenario.n_steps
-    if n > sim.CHUNK:
-        raise ValueError(f"python-control comparison runs at most {sim.CHUNK} steps, asked {n}")
+    if n > loop.CHUNK:
+        raise ValueError(f"python-control comparison runs at most {loop.CHUNK} steps, asked {n}")
     ctrl = controllers.get(controller)
     settings = scenario.settings(controller)
-    noise_ss, init_ss = sim.seed_sequences(seed)
+    noise_ss, init_ss = loop.seed_sequences(seed)
     p, s, W, P = ctrl.pack(settings, scenario, np.random.default_rng(init_ss))
     std = np.array(scenario.noise.pose_std)
     noise = np.random.default_rng(noise_ss).standard_normal((n, 3)) * std
@@ -651,7 +651,7 @@ def main(out: str | Path = "paper", quick: bool = False, workers: int | None = N
     machine = _machine()
 
     # 1. warm-up: the first simulate of each controller (compilation), apart from the timings.
-    kernels = {name: sim.kernel(name, controllers.get(name).law) for name in names}
+    kernels = {name: loop.kernel(name, controllers.get(name).law) for name in names}
     fresh = all(len(k.signatures) == 0 for k in kernels.values())
     warm = {}
     for name in names:
@@ -931,7 +931,7 @@ def _notes(res) -> list[str]:
         "peak_rss_children_mb is the largest child's high-water mark, which counts the pages it "
         "shares with the parent after fork: it is not memory added to the parent's.",
         "Absolute wall times depend on other load on the shared machine (machine.load_average_*).",
-        "The loop is compiled once per controller (wmr.sim.kernel) and cached on disk: "
+        "The loop is compiled once per controller (wmr.loop.kernel) and cached on disk: "
         "advance_cache counts the loads from the cache (hits) and compilations (misses) of this "
         "process.",
     ]

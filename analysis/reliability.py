@@ -115,9 +115,9 @@ def bad_inputs() -> dict:
 
 def long_runs(hours: float = 1.0) -> dict:
     """A long run of every controller (no trajectory kept): finite, and memory independent of
-    the run length (peak traced allocation of a run of 2 chunks of ``wmr.sim.CHUNK`` steps vs the
+    the run length (peak traced allocation of a run of 2 chunks of ``wmr.loop.CHUNK`` steps vs the
     full run; below one chunk the buffers are smaller, so that is the fair baseline)."""
-    from wmr.sim import CHUNK
+    from wmr.loop import CHUNK
 
     sc = scn.load(scn.builtin("lemniscate"))
     out = {}

@@ -26,7 +26,7 @@ from scipy import stats
 from wmr import controllers
 from wmr import scenario as scn
 from wmr.io import atomic_write_text, save_figure, write_csv, write_json
-from wmr.sim import TRANSIENT
+from wmr.metrics import TRANSIENT
 from wmr.study import ROW_HEADER, Job, Row, run_jobs
 
 __all__ = ["PAPER_RMSE", "VARIANTS", "build_jobs", "summarise", "main"]
@@ -54,7 +54,7 @@ PAPER_RMSE = {
 }
 TABLE_NUMBER = {"lemniscate": 1, "sinusoid": 2, "sinusoid-perturbed": 3}
 AXES = ("x", "y", "theta")
-#: RMSE over t >= wmr.sim.TRANSIENT (the initial pose error left out), per axis and position.
+#: RMSE over t >= wmr.metrics.TRANSIENT (the initial pose error left out), per axis and position.
 TAIL = ("tail_x", "tail_y", "tail_theta", "tail_position")
 
 

@@ -141,7 +141,7 @@ def test_weight_covariance_stays_spd_along_default_runs(paper, name, scenario_na
     assert not r.diverged
     repairs = r.state[:, r.state_names.index("cov_repairs")]
     assert np.all(repairs == 0)
-    P = r.extra["P"]
+    P = r.final.P
     np.testing.assert_array_equal(P, P.T)
     assert np.linalg.eigvalsh(P).min() > 0
 
@@ -249,13 +249,8 @@ def test_adaptive_controllers_remember_the_saturated_input(name, paper):
     identifier, regressor) is the applied, saturated one, and saturation does actually occur."""
     sc = dataclasses.replace(paper["lemniscate"], limits=scn.Limits(0.3, 0.4), duration=5.0)
     r = simulate(sc, name, seed=0)
-    s_final = r.extra["s"]
     assert np.any(np.abs(r.u[:, 0]) == 0.3) or np.any(np.abs(r.u[:, 1]) == 0.4)
-    if name == "adaptive-nn":
-        stored = s_final[9:11]
-    else:
-        stored = s_final[pid.S_U : pid.S_U + 2]
-    np.testing.assert_array_equal(stored, r.u[-1])
+    np.testing.assert_array_equal(r.final.previous_input, r.u[-1])
 
 
 def test_saturated_channel_has_a_zero_regressor(paper):

@@ -17,7 +17,7 @@ import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
 from wmr import kinematics as km
-from wmr import metrics, references, sim
+from wmr import loop, metrics, references, sim
 from wmr import scenario as scn
 from wmr.controllers import backstepping
 
@@ -288,7 +288,7 @@ def test_chunk_size_does_not_change_the_run(changes, monkeypatch):
     sc = _scenario(**changes)
     default = sim.simulate(sc, "backstepping", 11)
     assert default.diverged == ("divergence_bound" in changes)
-    monkeypatch.setattr(sim, "CHUNK", 7)  # 4000 steps: 572 chunks, the last one partial
+    monkeypatch.setattr(loop, "CHUNK", 7)  # 4000 steps: 572 chunks, the last one partial
     _assert_runs_identical(sim.simulate(sc, "backstepping", 11), default)
     lean = sim.simulate(sc, "backstepping", 11, keep_trajectory=False)
     assert lean.summary() == default.summary()
@@ -296,9 +296,9 @@ def test_chunk_size_does_not_change_the_run(changes, monkeypatch):
 
 def test_run_longer_than_the_default_chunk(monkeypatch):
     sc = _scenario(duration=100.0)  # 10000 steps > CHUNK = 8192
-    assert sc.n_steps > sim.CHUNK
+    assert sc.n_steps > loop.CHUNK
     default = sim.simulate(sc, "backstepping")
-    monkeypatch.setattr(sim, "CHUNK", 1000)
+    monkeypatch.setattr(loop, "CHUNK", 1000)
     _assert_runs_identical(sim.simulate(sc, "backstepping"), default)
 
 
@@ -333,7 +333,7 @@ def test_rmse_after_transient_equals_metrics_on_the_tail_of_the_trajectory():
     from wmr import scenario as scn_
 
     r = sim.simulate(scn_.load(scn_.builtin("lemniscate")), "backstepping", seed=2)
-    tail = r.t >= sim.TRANSIENT
+    tail = r.t >= metrics.TRANSIENT
     expected = metrics.rmse(r.q[tail], r.ref[tail])
     for key, value in expected.items():
         assert r.rmse_after_transient[key] == pytest.approx(value, rel=1e-12)

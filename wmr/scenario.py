@@ -18,6 +18,8 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from wmr import controllers
 from wmr._settings import (
     FrozenMap,
@@ -146,6 +148,22 @@ class Estimator:
         for s in self.process_std:
             nonnegative("process_std", s)
         positive("min_measurement_std", self.min_measurement_std)
+
+    def filters(self, controller: str) -> bool:
+        """Whether ``controller`` acts on the filtered pose (the one place this rule lives)."""
+        if self.pose_source == "paper":
+            return controllers.get(controller).uses_estimator
+        return self.pose_source == "filtered"
+
+    def matrices(self, noise: Noise) -> tuple[np.ndarray, np.ndarray]:
+        """The pose filter's process and measurement covariances ``(Qp, Rp)``, diagonal (3, 3).
+
+        ``Rp`` uses the scenario's measurement noise, floored at ``min_measurement_std``.
+        """
+        with np.errstate(over="ignore"):  # an absurd std gives an infinite covariance, not a warning
+            Qp = np.diag(np.square(self.process_std))
+            Rp = np.diag(np.square(np.maximum(noise.pose_std, self.min_measurement_std)))
+        return Qp, Rp
 
 
 @dataclass(frozen=True)

@@ -16,13 +16,13 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
+from wmr.result import Row
 from wmr.scenario import Scenario
 
 __all__ = ["Job", "Row", "run_job", "run_jobs", "default_workers", "ROW_HEADER"]
 
-#: Columns of ``paper/results/rmse.csv`` (issue 3 contract).
-ROW_HEADER = ("scenario", "controller", "variant", "seed", "rmse_x", "rmse_y", "rmse_theta",
-              "rmse_position", "diverged")  # fmt: skip
+#: Columns of ``paper/results/rmse.csv``.
+ROW_HEADER = Row.CSV_HEADER
 
 
 @dataclass(frozen=True)
@@ -37,41 +37,13 @@ class Job:
     settings: Any = None
 
 
-@dataclass(frozen=True)
-class Row:
-    """The summary of one run."""
-
-    scenario: str
-    controller: str
-    variant: str
-    seed: int
-    rmse_x: float
-    rmse_y: float
-    rmse_theta: float
-    rmse_position: float
-    diverged: bool
-    diverged_at: float | None = None
-    cause: str | None = None
-    tail_x: float = math.nan  # RMSE over t >= wmr.sim.TRANSIENT (not in rmse.csv)
-    tail_y: float = math.nan
-    tail_theta: float = math.nan
-    tail_position: float = math.nan
-
-    def csv_row(self) -> tuple:
-        return (self.scenario, self.controller, self.variant, self.seed, self.rmse_x, self.rmse_y,
-                self.rmse_theta, self.rmse_position, str(self.diverged).lower())  # fmt: skip
-
-
 def run_job(job: Job) -> Row:
     """Run one job (no trajectory kept) and summarise it."""
     from wmr.sim import simulate
 
     r = simulate(job.scenario, job.controller, job.seed, settings=job.settings,
                  keep_trajectory=False)  # fmt: skip
-    t = r.rmse_after_transient
-    return Row(job.scenario.name, job.controller, job.variant, job.seed, r.rmse["x"], r.rmse["y"],
-               r.rmse["theta"], r.rmse["position"], r.diverged, r.diverged_at, r.cause,
-               t["x"], t["y"], t["theta"], t["position"])  # fmt: skip
+    return Row.of(r, job.variant)
 
 
 def default_workers() -> int:

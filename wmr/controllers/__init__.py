@@ -2,14 +2,28 @@
 
 A controller is a pure jitted law plus explicit state (STYLE §7)::
 
-    law(p, s, W, P, q_hat, ref, dt, u) -> None
+    law(p, s, theta, P, q_hat, ref, dt, u) -> None
 
 ``p`` are its frozen parameters (a namedtuple or float vector), ``s`` its small mutable state
-(integrals, gains, previous signals...), ``W`` and ``P`` its weight vector and covariance (empty
-for controllers without a network); it writes the input ``(v, w)`` into ``u``.
-``pack(settings, scenario, rng) -> (p, s, W, P)`` builds them from the validated settings (``rng``
-initialises network weights); the simulator owns and advances them.  The first
-``len(state_names)`` entries of ``s`` are logged along a run.
+(integrals, gains, previous signals...), ``theta`` and ``P`` its flat network weight vector and
+that vector's covariance (empty for controllers without a network); it writes the input
+``(v, w)`` into ``u``.  The loop (``wmr.loop``) owns and advances them.
+
+The contract of a controller module, one row of :data:`REGISTRY` each (a test runs over every
+row, ``tests/test_registry.py``):
+
+1. ``Settings``: a frozen dataclass of validated settings with defaults (``wmr._settings``);
+   the scenario table ``[controllers.<name>]`` is converted into it.
+2. ``pack(settings, scenario, rng) -> (p, s, theta, P)``: the law's inputs from the settings
+   (``rng`` initialises network weights; nothing else may draw from it).
+3. ``law``: the jitted law above.  It must saturate its own output when it remembers the input
+   it applied (the loop saturates again; that clip is then a no-op).
+4. ``state_names``: the first ``len(state_names)`` entries of ``s`` are logged along a run under
+   these names (``RunResult.signal``).
+5. ``final_state(p, s, theta, P)``: the controller state as a dataclass (``RunResult.final``).
+6. ``uses_estimator``: whether it acts on the pose filter's estimate under
+   ``pose_source = "paper"`` (``wmr.scenario.Estimator.filters``).
+7. ``label`` and ``colour``: how tables and figures name and draw it.
 """
 
 from __future__ import annotations
@@ -19,36 +33,41 @@ from dataclasses import dataclass
 
 from wmr.controllers import adaptive_nn, backstepping, iapid_nn_dekf, pid
 
-__all__ = ["Controller", "REGISTRY", "NAMES", "PAPER_NAMES", "get"]
+__all__ = ["Controller", "REGISTRY", "NAMES", "PAPER_NAMES", "get", "label", "colour"]
 
 
 @dataclass(frozen=True)
 class Controller:
-    """A registered controller."""
+    """A registered controller (one row of the registry; see the module's contract)."""
 
     name: str
     Settings: type
     pack: Callable
     law: Callable
-    state_names: tuple[str, ...] = ()
-    uses_estimator: bool = False  # True: consumes the pose-EKF estimate under pose_source="paper"
-    label: str = ""
+    final_state: Callable
+    state_names: tuple[str, ...]
+    uses_estimator: bool
+    label: str
+    colour: str
 
 
 REGISTRY: dict[str, Controller] = {
     c.name: c
     for c in (
         Controller("iapid-nn-dekf", iapid_nn_dekf.Settings, iapid_nn_dekf.pack,
-                   iapid_nn_dekf.law, iapid_nn_dekf.STATE_NAMES, uses_estimator=True,
-                   label="IAPID-NN-DEKF"),
+                   iapid_nn_dekf.law, iapid_nn_dekf.final_state, iapid_nn_dekf.STATE_NAMES,
+                   uses_estimator=True, label="IAPID-NN-DEKF", colour="tab:blue"),
         Controller("backstepping", backstepping.Settings, backstepping.pack, backstepping.law,
-                   backstepping.STATE_NAMES, label="BSC"),
+                   backstepping.final_state, backstepping.STATE_NAMES,
+                   uses_estimator=False, label="BSC", colour="tab:orange"),
         Controller("adaptive-nn", adaptive_nn.Settings, adaptive_nn.pack, adaptive_nn.law,
-                   adaptive_nn.STATE_NAMES, label="DA-NN"),
-        Controller("adaptive-pid", pid.Settings, pid.pack, pid.law, pid.STATE_NAMES,
-                   label="APID"),
-        Controller("pid", pid.FixedSettings, pid.pack, pid.law, pid.GAIN_NAMES,
-                   label="PID (fixed)"),
+                   adaptive_nn.final_state, adaptive_nn.STATE_NAMES,
+                   uses_estimator=False, label="DA-NN", colour="tab:red"),
+        Controller("adaptive-pid", pid.Settings, pid.pack, pid.law, pid.final_state,
+                   pid.STATE_NAMES, uses_estimator=False, label="APID", colour="tab:pink"),
+        Controller("pid", pid.FixedSettings, pid.pack, pid.law, pid.final_state,
+                   pid.GAIN_NAMES, uses_estimator=False, label="PID (fixed)",
+                   colour="tab:gray"),
     )
 }  # fmt: skip
 #: Controller names in table order.
@@ -63,3 +82,13 @@ def get(name: str) -> Controller:
         return REGISTRY[name]
     except KeyError:
         raise KeyError(f"unknown controller {name!r}; known: {', '.join(NAMES)}") from None
+
+
+def label(name: str) -> str:
+    """The table label of controller ``name`` (the name itself for an unregistered one)."""
+    return REGISTRY[name].label if name in REGISTRY else name
+
+
+def colour(name: str) -> str | None:
+    """The figure colour of controller ``name`` (None for an unregistered one)."""
+    return REGISTRY[name].colour if name in REGISTRY else None

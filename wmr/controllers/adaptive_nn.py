@@ -4,13 +4,13 @@
 identification (reproduction-notes §4.2).  Design chosen here (Fierro & Lewis-style backstepping
 plus an NN compensator, trained like the paper's DEKF)::
 
-    u_k = u_bsc(e_k) + NN_c(phi_k; W),   phi = (e1, e2, sin e3, cos e3 - 1, v_r, w_r)
+    u_k = u_bsc(e_k) + NN_c(phi_k; theta),   phi = (e1, e2, sin e3, cos e3 - 1, v_r, w_r)
 
 with ``u_bsc`` the backstepping law (same default gains) and the network's output layer starting
 at zero, so DA-NN starts as backstepping and differs only by what it learns.  The weights are the
 state of an EKF with the paper's ``P0, Q, R`` (eq. 63): at step ``k`` the "measurement" is the
 reference pose ``q_r,k`` the last input should have reached, the model is the pose it reached,
-``h(W) = q_hat_k`` with ``dh/dW = J_{k-1} dNN_c/dW(phi_{k-1})`` (``J`` the exact ZOH plant
+``h(theta) = q_hat_k`` with ``dh/dtheta = J_{k-1} dNN_c/dtheta(phi_{k-1})`` (``J`` the exact ZOH plant
 Jacobian), and the innovation is ``q_r,k - q_hat_k`` (heading wrapped).
 """
 
@@ -29,7 +29,7 @@ from wmr.controllers import backstepping
 from wmr.ekf import repair_covariance, weight_update
 from wmr.kinematics import INTEGRATORS, step_jacobians, tracking_error, wrap_angle
 
-__all__ = ["Settings", "STATE_NAMES", "pack", "law"]
+__all__ = ["Settings", "State", "STATE_NAMES", "pack", "final_state", "law"]
 
 N_IN = 6
 N_OUT = 2
@@ -80,14 +80,45 @@ class Settings:
 
 
 def pack(settings: Settings, scenario, rng):
-    """``(p, s, W, P)``: output layer of the compensator initialised to zero."""
+    """``(p, s, theta, P)``: output layer of the compensator initialised to zero."""
     n = nn.n_weights(N_IN, settings.hidden, N_OUT)
-    W = nn.init_weights(rng, N_IN, settings.hidden, N_OUT, output_scale=0.0)
+    theta = nn.init_weights(rng, N_IN, settings.hidden, N_OUT, output_scale=0.0)
     p = Params(np.array(settings.gains), settings.printed_rotation,
                INTEGRATORS[scenario.integrator], settings.hidden, np.full(n, settings.q),
                settings.r * np.eye(3), np.zeros((N_OUT, n)), np.zeros((3, n)),
                np.zeros((3, 3, n)), scenario.limits.v_max, scenario.limits.w_max)  # fmt: skip
-    return p, np.zeros(_S_SIZE), W, settings.p0 * np.eye(n)
+    return p, np.zeros(_S_SIZE), theta, settings.p0 * np.eye(n)
+
+
+@dataclass(frozen=True)
+class State:
+    """DA-NN's controller state (a run's final one: ``RunResult.final``).
+
+    Attributes
+    ----------
+    theta : ndarray, shape (n,)
+        The compensator's flat weight vector (``wmr.nn`` layout).
+    P : ndarray, shape (n, n)
+        Its covariance in the weight EKF.
+    nn_output : ndarray, shape (2,)
+        The compensator's last contribution to ``(v, w)``.
+    previous_input : ndarray, shape (2,)
+        ``u_{k-1}`` as the plant received it (saturated).
+    cov_repairs : int
+        Covariance repairs (and failed updates) so far.
+    """
+
+    theta: np.ndarray
+    P: np.ndarray
+    nn_output: np.ndarray
+    previous_input: np.ndarray
+    cov_repairs: int
+
+
+def final_state(p, s, theta, P) -> State:
+    """The controller state as a :class:`State`."""
+    return State(theta=theta.copy(), P=P.copy(), nn_output=s[_S_NN : _S_NN + 2].copy(),
+                 previous_input=s[_S_U : _S_U + 2].copy(), cov_repairs=int(s[_S_REPAIRS]))
 
 
 @njit
@@ -103,11 +134,11 @@ def _features(e, ref):
 
 
 @njit
-def adapt(p, s, W, P, q_hat, ref, dt):
+def adapt(p, s, theta, P, q_hat, ref, dt):
     """EKF step on the compensator weights from the error the last input left (see module doc)."""
     phi = s[_S_PHI : _S_PHI + N_IN].copy()
-    _, h = nn.forward(W, phi, p.n_h, N_OUT)
-    nn.weight_jacobian(W, phi, p.n_h, N_OUT, h, p.Hn)
+    _, h = nn.forward(theta, phi, p.n_h, N_OUT)
+    nn.weight_jacobian(theta, phi, p.n_h, N_OUT, h, p.Hn)
     for c in range(N_OUT):  # a saturated input did not depend on the weights
         if s[_S_SAT + c] != 0.0:
             p.Hn[c, :] = 0.0
@@ -119,20 +150,20 @@ def adapt(p, s, W, P, q_hat, ref, dt):
     innovation[0] = ref[0] - q_hat[0]
     innovation[1] = ref[1] - q_hat[1]
     innovation[2] = wrap_angle(ref[2] - q_hat[2])
-    nis = weight_update(W, P, p.H, innovation, p.q_diag, p.R, p.work)
+    nis = weight_update(theta, P, p.H, innovation, p.q_diag, p.R, p.work)
     # a failed update (S not positive definite: NaN NIS, nothing changed) counts like a repair
     if repair_covariance(P, P_FLOOR) or not math.isfinite(nis):
         s[_S_REPAIRS] += 1.0
 
 
 @njit
-def law(p, s, W, P, q_hat, ref, dt, u):
+def law(p, s, theta, P, q_hat, ref, dt, u):
     """One DA-NN step: adapt the compensator, then backstepping plus compensator."""
     if s[_S_STARTED] != 0.0:
-        adapt(p, s, W, P, q_hat, ref, dt)
+        adapt(p, s, theta, P, q_hat, ref, dt)
     e = tracking_error(q_hat, ref, p.printed_rotation)
     phi = _features(e, ref)
-    z, _ = nn.forward(W, phi, p.n_h, N_OUT)
+    z, _ = nn.forward(theta, phi, p.n_h, N_OUT)
     v_r = ref[3]
     u[0] = v_r * math.cos(e[2]) + p.gains[0] * e[0] + z[0]
     u[1] = ref[4] + v_r * (p.gains[1] * e[1] + p.gains[2] * math.sin(e[2])) + z[1]

@@ -21,7 +21,7 @@ from wmr._jit import njit
 from wmr._settings import check
 from wmr.kinematics import tracking_error
 
-__all__ = ["Settings", "STATE_NAMES", "pack", "law"]
+__all__ = ["Settings", "State", "STATE_NAMES", "pack", "final_state", "law"]
 
 #: Controller-state entries logged along a run (none: the law is static).
 STATE_NAMES: tuple[str, ...] = ()
@@ -55,8 +55,18 @@ def pack(settings: Settings, scenario, rng: np.random.Generator):
     return p, np.zeros(0), np.zeros(0), np.zeros((0, 0))
 
 
+@dataclass(frozen=True)
+class State:
+    """Backstepping has no controller state: the law is static."""
+
+
+def final_state(p, s, theta, P) -> State:
+    """The (empty) controller state."""
+    return State()
+
+
 @njit
-def law(p, s, W, P, q_hat, ref, dt, u):
+def law(p, s, theta, P, q_hat, ref, dt, u):
     """Write the backstepping input ``u = (v, w)`` for estimate ``q_hat`` and sample ``ref``."""
     e = tracking_error(q_hat, ref, p[3] != 0.0)
     v_r = ref[3]

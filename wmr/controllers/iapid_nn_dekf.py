@@ -31,7 +31,8 @@ from wmr.controllers.pid import S_NN_ERR, S_Q, S_REPAIRS, S_STARTED, S_U
 from wmr.ekf import repair_covariance, weight_update
 from wmr.kinematics import tracking_error, wrap_angle
 
-__all__ = ["Settings", "STATE_NAMES", "N_IN", "pack", "law", "identifier_input"]
+__all__ = ["Settings", "State", "STATE_NAMES", "N_IN", "pack", "final_state", "law",
+           "identifier_input"]
 
 #: Network inputs ``(v, w, cos theta, sin theta)``; outputs ``(x', y', theta')`` estimates.
 N_IN = 4
@@ -76,16 +77,45 @@ class Settings(pid.Settings):
 
 
 def pack(settings: Settings, scenario, rng):
-    """``(p, s, W, P)``: PID parameters, network weights ``W`` (n,) and covariance ``P0``."""
+    """``(p, s, theta, P)``: PID parameters, network weights ``theta`` (n,) and covariance
+    ``P0``."""
     n = nn.n_weights(N_IN, settings.hidden, N_OUT)
-    base = pid.make_params(settings, 2, scenario, n_h=settings.hidden,
+    base = pid.make_params(settings, pid.JacobianSource.NETWORK, scenario, n_h=settings.hidden,
                             printed_jacobian=settings.printed_jacobian,
                             q_diag=np.full(n, settings.q),
                             R=settings.r * np.eye(N_OUT))  # fmt: skip
     p = Params(*base, H=np.zeros((N_OUT, n)), work=np.zeros((3, N_OUT, n)))
-    W = nn.init_weights(rng, N_IN, settings.hidden, N_OUT, settings.output_scale)
+    theta = nn.init_weights(rng, N_IN, settings.hidden, N_OUT, settings.output_scale)
     P = settings.p0 * np.eye(n)
-    return p, pid.initial_state(settings), W, P
+    return p, pid.initial_state(settings), theta, P
+
+
+@dataclass(frozen=True)
+class State(pid.State):
+    """IAPID-NN-DEKF's controller state: the PID family's plus the identifier's.
+
+    Attributes
+    ----------
+    theta : ndarray, shape (n,)
+        The identifier's flat weight vector (``wmr.nn`` layout).
+    P : ndarray, shape (n, n)
+        Its covariance in the weight filter.
+    nn_error : float
+        Norm of the last innovation ``d_k - NN(x_{k-1})``.
+    cov_repairs : int
+        Covariance repairs (and failed updates) so far.
+    """
+
+    theta: np.ndarray
+    P: np.ndarray
+    nn_error: float
+    cov_repairs: int
+
+
+def final_state(p, s, theta, P) -> State:
+    """The controller state as a :class:`State`."""
+    return State(**pid.state_fields(s), theta=theta.copy(), P=P.copy(),
+                 nn_error=float(s[S_NN_ERR]), cov_repairs=int(s[S_REPAIRS]))
 
 
 @njit
@@ -100,35 +130,35 @@ def identifier_input(u, theta):
 
 
 @njit
-def identify(p, s, W, P, q_hat, dt):
+def identify(p, s, theta, P, q_hat, dt):
     """Steps 1-2: weight-EKF update on the last transition, then the identified ``J_{k-1}``."""
     x = identifier_input(s[S_U : S_U + 2], s[S_Q + 2])
-    z, h = nn.forward(W, x, p.nn_n_h, N_OUT)
+    z, h = nn.forward(theta, x, p.nn_n_h, N_OUT)
     d = np.empty(N_OUT)
     for i in range(2):
         d[i] = (q_hat[i] - s[S_Q + i]) / dt
     d[2] = wrap_angle(q_hat[2] - s[S_Q + 2]) / dt
     innovation = d - z
     s[S_NN_ERR] = math.sqrt(innovation[0] ** 2 + innovation[1] ** 2 + innovation[2] ** 2)
-    nn.weight_jacobian(W, x, p.nn_n_h, N_OUT, h, p.H)
-    nis = weight_update(W, P, p.H, innovation, p.q_diag, p.R, p.work)
+    nn.weight_jacobian(theta, x, p.nn_n_h, N_OUT, h, p.H)
+    nis = weight_update(theta, P, p.H, innovation, p.q_diag, p.R, p.work)
     # a failed update (S not positive definite: NaN NIS, nothing changed) counts like a repair
     if repair_covariance(P, P_FLOOR) or not math.isfinite(nis):
         s[S_REPAIRS] += 1.0
     if p.nn_printed_jacobian:
-        Jx = nn.input_jacobian_printed(W, x, p.nn_n_h, N_OUT)
+        Jx = nn.input_jacobian_printed(theta, x, p.nn_n_h, N_OUT)
     else:
-        _, h = nn.forward(W, x, p.nn_n_h, N_OUT)
-        Jx = nn.input_jacobian(W, x, p.nn_n_h, N_OUT, h)
+        _, h = nn.forward(theta, x, p.nn_n_h, N_OUT)
+        Jx = nn.input_jacobian(theta, x, p.nn_n_h, N_OUT, h)
     return dt * Jx[:, 0:2].copy()
 
 
 @njit
-def law(p, s, W, P, q_hat, ref, dt, u):
+def law(p, s, theta, P, q_hat, ref, dt, u):
     """One IAPID-NN-DEKF step: identify, tune the gains (SGD), apply eq. (7)."""
     e = tracking_error(q_hat, ref, p.printed_rotation)
     if s[S_STARTED] != 0.0:
-        J = identify(p, s, W, P, q_hat, dt)
+        J = identify(p, s, theta, P, q_hat, dt)
         pid.store_jacobian(s, J)
         pid.sgd_gain_step(p, s, J, e, q_hat[2])
     pid.pid_output(p, s, e, ref, dt, u)

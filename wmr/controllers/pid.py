@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 from collections import namedtuple
 from dataclasses import dataclass
+from enum import IntEnum
 
 import numpy as np
 
@@ -38,14 +39,17 @@ __all__ = [
     "Settings",
     "FixedSettings",
     "Params",
+    "State",
+    "JacobianSource",
     "STATE_NAMES",
+    "GAIN_NAMES",
+    "J_NAMES",
     "pack",
+    "final_state",
     "make_params",
     "law",
     "pid_output",
     "sgd_gain_step",
-    "S_K",
-    "S_J",
 ]
 
 # Layout of the PID-family state vector s.
@@ -66,10 +70,20 @@ J_NAMES = ("J_xv", "J_xw", "J_yv", "J_yw", "J_thv", "J_thw")
 #: Logged along a run by ``adaptive-pid`` (``pid`` logs the same; its gains stay constant).
 STATE_NAMES = GAIN_NAMES + J_NAMES
 
+
+
+class JacobianSource(IntEnum):
+    """Where the SGD step of eqs. (9)-(17) takes the plant Jacobian ``J_{k-1}`` from."""
+
+    NONE = 0  # no adaptation: the fixed ``pid``
+    MODEL = 1  # the exact ZOH Jacobian of the nominal unicycle (``adaptive-pid``)
+    NETWORK = 2  # identified online by the network (``iapid-nn-dekf``)
+
+
 #: Frozen parameters of the PID family inside jitted code.
 Params = namedtuple(
     "Params",
-    "K_min K_max mu alpha feed_forward printed_rotation adaptive integrator "
+    "K_min K_max mu alpha feed_forward printed_rotation jacobian_source integrator "
     "nn_n_h nn_printed_jacobian q_diag R v_max w_max",
 )
 
@@ -120,10 +134,10 @@ class Settings:
             check(lo <= k <= hi, "gains", self.gains, "must lie within [gain_min, gain_max]")
 
 
-def make_params(settings: Settings, adaptive: int, scenario, **nn) -> Params:
-    """Jitted-side parameters: ``adaptive`` 0 fixed, 1 analytic Jacobian, 2 network Jacobian;
-    the scenario's integrator and actuator limits; ``nn`` holds the network size and
-    weight-filter matrices for ``iapid-nn-dekf``."""
+def make_params(settings: Settings, source: JacobianSource, scenario, **nn) -> Params:
+    """Jitted-side parameters: the Jacobian ``source`` of the SGD step, the scenario's
+    integrator and actuator limits; ``nn`` holds the network size and weight-filter matrices for
+    ``iapid-nn-dekf``."""
     return Params(
         K_min=np.array(settings.gain_min),
         K_max=np.array(settings.gain_max),
@@ -131,7 +145,7 @@ def make_params(settings: Settings, adaptive: int, scenario, **nn) -> Params:
         alpha=np.array(settings.alpha),
         feed_forward=settings.feed_forward,
         printed_rotation=settings.printed_rotation,
-        adaptive=adaptive,
+        jacobian_source=int(source),
         integrator=INTEGRATORS[scenario.integrator],
         nn_n_h=nn.get("n_h", 0),
         nn_printed_jacobian=nn.get("printed_jacobian", False),
@@ -156,9 +170,44 @@ class FixedSettings(Settings):
 
 
 def pack(settings: Settings, scenario, rng):
-    """``(p, s, W, P)`` for ``pid``/``adaptive-pid``: no network, so ``W`` and ``P`` are empty."""
-    p = make_params(settings, 1 if settings.adapt else 0, scenario)
+    """``(p, s, theta, P)`` for ``pid``/``adaptive-pid``: no network, so ``theta`` and ``P`` are
+    empty."""
+    source = JacobianSource.MODEL if settings.adapt else JacobianSource.NONE
+    p = make_params(settings, source, scenario)
     return p, initial_state(settings), np.zeros(0), np.zeros((0, 0))
+
+
+@dataclass(frozen=True)
+class State:
+    """The PID family's controller state (a run's final one: ``RunResult.final``).
+
+    Attributes
+    ----------
+    gains : ndarray, shape (6,)
+        ``(Kpv, Kiv, Kdv, Kpw, Kiw, Kdw)``.
+    jacobian : ndarray, shape (3, 2)
+        The plant Jacobian ``J_{k-1}`` the last SGD step used (zero for the fixed ``pid``).
+    integrals : ndarray, shape (2,)
+        ``I[e1]``, ``I[s]`` of eq. (7).
+    previous_input : ndarray, shape (2,)
+        ``u_{k-1}`` as the plant received it (saturated).
+    """
+
+    gains: np.ndarray
+    jacobian: np.ndarray
+    integrals: np.ndarray
+    previous_input: np.ndarray
+
+
+def state_fields(s) -> dict:
+    """The named fields of :class:`State` read from the state vector ``s`` (copies)."""
+    return {"gains": s[S_K : S_K + 6].copy(), "jacobian": s[S_J : S_J + 6].reshape(3, 2).copy(),
+            "integrals": s[S_INT : S_INT + 2].copy(), "previous_input": s[S_U : S_U + 2].copy()}
+
+
+def final_state(p, s, theta, P) -> State:
+    """The controller state as a :class:`State`."""
+    return State(**state_fields(s))
 
 
 @njit
@@ -243,10 +292,10 @@ def remember(s, q_hat, u):
 
 
 @njit
-def law(p, s, W, P, q_hat, ref, dt, u):
+def law(p, s, theta, P, q_hat, ref, dt, u):
     """``pid`` / ``adaptive-pid``: SGD step with the exact ZOH plant Jacobian, then eq. (7)."""
     e = tracking_error(q_hat, ref, p.printed_rotation)
-    if p.adaptive != 0 and s[S_STARTED] != 0.0:
+    if p.jacobian_source != JacobianSource.NONE and s[S_STARTED] != 0.0:
         _, J = step_jacobians(s[S_Q : S_Q + 3], s[S_U : S_U + 2], dt, p.integrator)
         store_jacobian(s, J)
         sgd_gain_step(p, s, J, e, q_hat[2])
