@@ -861,6 +861,23 @@ def main(out: str | Path = "paper", seeds: int = 50, quick: bool = False,
     return results
 
 
+
+# --- Study shape (DESIGN §3.6); transitional adapter, replaced when the module is split --------
+STEM = "boundedness"
+TITLE = "DEKF boundedness (Assumption 1, Lemma 2)"
+
+
+def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
+    """Run the study into ``out`` (see :func:`main`)."""
+    return main(out, quick=quick, workers=workers)
+
+
+def check(record: dict) -> None:
+    """The headline claims are asserted inside :func:`main` for now."""
+
+
+render = None  # the report renders this study's section from its stored files
+
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="paper")

@@ -1313,6 +1313,23 @@ def _self_check(results: dict) -> None:
             assert d["diverged_at"] is not None or d["peak_over_initial"] > 10.0, d
 
 
+
+# --- Study shape (DESIGN §3.6); transitional adapter, replaced when the module is split --------
+STEM = "margins"
+TITLE = "Linearised loops: margins (python-control)"
+
+
+def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
+    """Run the study into ``out`` (see :func:`main`)."""
+    return main(out)
+
+
+def check(record: dict) -> None:
+    """The headline claims are asserted inside :func:`main` for now."""
+
+
+render = None  # the report renders this study's section from its stored files
+
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="paper")

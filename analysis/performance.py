@@ -1061,5 +1061,22 @@ def cli_main(argv=None) -> int:
     return 1 if failed else 0
 
 
+
+# --- Study shape (DESIGN §3.6); transitional adapter, replaced when the module is split --------
+STEM = "performance"
+TITLE = "Performance"
+
+
+def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
+    """Run the study into ``out`` (see :func:`main`)."""
+    return main(out, quick=quick, workers=workers, check=False)
+
+
+def check(record: dict) -> None:
+    """The headline claims are asserted inside :func:`main` for now."""
+
+
+render = None  # the report renders this study's section from its stored files
+
 if __name__ == "__main__":
     sys.exit(cli_main())

@@ -227,6 +227,23 @@ def main(out: str | Path = "paper", hours: float = 1.0) -> dict:
     return result
 
 
+
+# --- Study shape (DESIGN §3.6); transitional adapter, replaced when the module is split --------
+STEM = "reliability"
+TITLE = "Reliability"
+
+
+def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
+    """Run the study into ``out`` (see :func:`main`)."""
+    return main(out)
+
+
+def check(record: dict) -> None:
+    """The headline claims are asserted inside :func:`main` for now."""
+
+
+render = None  # the report renders this study's section from its stored files
+
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="paper")

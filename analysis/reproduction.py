@@ -459,6 +459,23 @@ def main(out: str | Path = "paper", seeds: int = 20, workers: int | None = None,
     return summary
 
 
+
+# --- Study shape (DESIGN §3.6); transitional adapter, replaced when the module is split --------
+STEM = "reproduction"
+TITLE = "Tables 1–3: the paper beside this reproduction"
+
+
+def run(out, *, quick: bool = False, workers: int | None = None, seeds: int = 20) -> dict:
+    """Run the study into ``out`` (see :func:`main`)."""
+    return main(out, seeds=seeds if not quick else min(seeds, 3), workers=workers)
+
+
+def check(record: dict) -> None:
+    """The headline claims are asserted inside :func:`main` for now."""
+
+
+render = None  # the report renders this study's section from its stored files
+
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="paper")

@@ -49,23 +49,24 @@ def test_interrupted_reproduce_keeps_previous_results_and_a_rerun_completes(tmp_
     (out / "results").mkdir(parents=True)
     (out / "results" / "rmse.csv").write_text("previous\n")
 
-    def study(fail):
-        def main(stage, **kwargs):
+    def registry(fail):
+        def run(stage, **kwargs):
             (Path(stage) / "results").mkdir(parents=True, exist_ok=True)
             (Path(stage) / "results" / "rmse.csv").write_text("new\n")
             if fail:
                 raise KeyboardInterrupt  # the user presses Ctrl-C in the middle of the study
+            return {}
 
-        return types.SimpleNamespace(main=main)
+        study = types.SimpleNamespace(STEM="reproduction", TITLE="t", run=run,
+                                      check=lambda record: None)  # fmt: skip
+        return types.SimpleNamespace(STUDIES=("reproduction",), get=lambda name: study)
 
-    fake_report = types.SimpleNamespace(main=lambda out: Path(out) / "report.md")
     argv = ["reproduce", "--out", str(out), "--skip-analyses", "--skip-bench", "--seeds", "1"]
-    monkeypatch.setattr(cli, "_study", lambda name: study(True) if name == "reproduction"
-                        else fake_report)  # fmt: skip
+    monkeypatch.setattr(cli, "_report", lambda out: Path(out) / "report.md")
+    monkeypatch.setattr(cli, "_studies", lambda: registry(True))
     assert cli.main(argv) == 130
     assert (out / "results" / "rmse.csv").read_text() == "previous\n"
-    monkeypatch.setattr(cli, "_study", lambda name: study(False) if name == "reproduction"
-                        else fake_report)  # fmt: skip
+    monkeypatch.setattr(cli, "_studies", lambda: registry(False))
     assert cli.main(argv) == 0
     assert (out / "results" / "rmse.csv").read_text() == "new\n"
     assert not (out / ".staging").exists()

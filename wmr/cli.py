@@ -132,20 +132,16 @@ def cmd_run(args) -> int:
     return 0
 
 
-#: The studies of ``analysis/`` that ``wmr analyze`` and ``wmr reproduce`` run (module names).
-STUDIES = ("jacobians", "margins", "boundedness", "reliability")
-
-
-def _study(name: str):
-    """Import ``analysis.<name>`` (the CLI is the one place where wmr reaches into analysis/)."""
-    import importlib
-
+def _studies():
+    """The study registry of ``analysis/`` (the CLI is the one place where wmr reaches into it)."""
     try:
-        return importlib.import_module(f"analysis.{name}")
+        import analysis
     except ModuleNotFoundError as err:
-        if err.name == f"analysis.{name}" or err.name == "analysis":
-            raise UsageError(f"study {name!r} is not available in this installation") from None
+        if err.name == "analysis":
+            raise UsageError("the studies (analysis/) are not available in this installation"
+                             ) from None  # fmt: skip
         raise
+    return analysis
 
 
 def _staged(out: Path):
@@ -185,39 +181,48 @@ def _check_out(out: Path) -> None:
 def cmd_reproduce(args) -> int:
     out = Path(args.out)
     _check_out(out)
-    reproduction = _study("reproduction")
-    studies = [(name, _study(name)) for name in STUDIES if not args.skip_analyses]
-    bench = None if args.skip_bench else _study("performance")
-    report = _study("report")
+    registry = _studies()
+    names = [n for n in registry.STUDIES
+             if (n == "reproduction" or not args.skip_analyses)
+             and (n != "performance" or not args.skip_bench)]  # fmt: skip
     stage = _staged(out)
-    print(f"reproduction: 3 scenarios x {args.seeds} seeds (+ ablations) "
-          f"on {args.workers or 'all'} workers")
-    reproduction.main(stage, seeds=args.seeds, workers=args.workers)
-    for name, module in studies:
-        print(f"analysis: {name}")
-        module.main(stage)
-    if bench is not None:
-        print("benchmark")
-        bench.main(stage, quick=False, workers=args.workers, check=False)
+    from analysis.common import run_and_check
+
+    for name in names:
+        study = registry.get(name)
+        print(f"{name}: {study.TITLE}", flush=True)
+        options = {"seeds": args.seeds} if name == "reproduction" else {}
+        run_and_check(study, stage, workers=args.workers, **options)
     n = _publish(stage, out)
-    report.main(out)
-    print(f"wrote {n} files and {out}/report.md")
+    path = _report(out)
+    print(f"wrote {n} files and {path}")
     return 0
+
+
+def _report(out: Path) -> Path:
+    from analysis import report
+
+    return report.main(out)
 
 
 def cmd_report(args) -> int:
     out = Path(args.out)
     if not (out / "results").is_dir():
         raise UsageError(f"--out {str(out)!r}: no results/ folder to build the report from")
-    path = _study("report").main(out)
-    print(f"wrote {path}")
+    _studies()
+    print(f"wrote {_report(out)}")
     return 0
 
 
 def cmd_analyze(args) -> int:
     out = Path(args.out)
     _check_out(out)
-    _study(args.study).main(out)
+    registry = _studies()
+    if args.study not in registry.STUDIES:
+        raise UsageError(f"unknown study {args.study!r} (known: {', '.join(registry.STUDIES)})")
+    from analysis.common import run_and_check
+
+    run_and_check(registry.get(args.study), out, quick=args.quick, workers=args.workers)
     print(f"wrote the {args.study} results into {out}")
     return 0
 
@@ -225,8 +230,8 @@ def cmd_analyze(args) -> int:
 def cmd_bench(args) -> int:
     out = Path(args.out)
     _check_out(out)
-    perf = _study("performance")
-    res = perf.main(out, quick=args.quick, workers=args.workers, check=False)
+    perf = _studies().get("performance")
+    res = perf.run(out, quick=args.quick, workers=args.workers)
     print(f"wrote {out}/results/performance.json, {out}/tables/performance.md")
     missed = [k for k, ok in res["targets_met"].items() if ok is False]
     print("targets met: " + ", ".join(k for k, ok in res["targets_met"].items() if ok))
@@ -261,9 +266,12 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("--out", default="paper", help="folder with results/ (default: paper)")
     report.set_defaults(func=cmd_report)
 
-    ana = sub.add_parser("analyze", help="run one analysis study")
-    ana.add_argument("study", choices=STUDIES)
+    ana = sub.add_parser("analyze", help="run one study of analysis/ (and check it)")
+    ana.add_argument("study", help="study name (analysis.STUDIES)")
     ana.add_argument("--out", default="paper", help="output folder (default: paper)")
+    ana.add_argument("--quick", action="store_true", help="a short version of the study")
+    ana.add_argument("--workers", type=_positive_int, default=None,
+                     help="worker processes (default: all cores)")  # fmt: skip
     ana.set_defaults(func=cmd_analyze)
 
     bench = sub.add_parser("bench", help="the side-by-side performance benchmark")
