@@ -70,9 +70,9 @@ from wmr.controllers.pid import S_NN_ERR, S_Q, S_REPAIRS, S_STARTED, S_U
 from wmr.ekf import nees, pose_predict, pose_update
 from wmr.io import atomic_write_text, save_figure, write_json
 from wmr.kinematics import integrator_code, step, wrap_angle
+from wmr.loop import CHUNK, seed_sequences
 from wmr.references import ReferenceSampler
 from wmr.scenario import Scenario
-from wmr.loop import CHUNK, seed_sequences
 from wmr.sim import simulate
 from wmr.study import default_workers
 

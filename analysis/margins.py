@@ -79,7 +79,7 @@ from scipy import optimize
 
 from wmr import scenario as scn
 from wmr import symbolic as sym
-from wmr._settings import check
+from wmr._settings import check as _check
 from wmr.controllers import backstepping as bsc_mod
 from wmr.controllers import pid as pid_mod
 from wmr.io import atomic_write_text, save_figure, write_json
@@ -155,10 +155,10 @@ class OperatingPoint:
     label: str = ""
 
     def __post_init__(self):
-        check(math.isfinite(self.v_r), "v_r", self.v_r, "must be finite")
-        check(math.isfinite(self.w_r), "w_r", self.w_r, "must be finite")
-        check(math.isfinite(self.dt) and self.dt > 0, "dt", self.dt, "must be > 0")
-        check(self.integrator in sym.INTEGRATORS, "integrator", self.integrator, "unknown")
+        _check(math.isfinite(self.v_r), "v_r", self.v_r, "must be finite")
+        _check(math.isfinite(self.w_r), "w_r", self.w_r, "must be finite")
+        _check(math.isfinite(self.dt) and self.dt > 0, "dt", self.dt, "must be > 0")
+        _check(self.integrator in sym.INTEGRATORS, "integrator", self.integrator, "unknown")
 
     @property
     def u_r(self) -> np.ndarray:

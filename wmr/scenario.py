@@ -160,7 +160,7 @@ class Estimator:
 
         ``Rp`` uses the scenario's measurement noise, floored at ``min_measurement_std``.
         """
-        with np.errstate(over="ignore"):  # an absurd std gives an infinite covariance, not a warning
+        with np.errstate(over="ignore"):  # an absurd std: an infinite covariance, not a warning
             Qp = np.diag(np.square(self.process_std))
             Rp = np.diag(np.square(np.maximum(noise.pose_std, self.min_measurement_std)))
         return Qp, Rp

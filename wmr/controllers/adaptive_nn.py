@@ -10,8 +10,8 @@ with ``u_bsc`` the backstepping law (same default gains) and the network's outpu
 at zero, so DA-NN starts as backstepping and differs only by what it learns.  The weights are the
 state of an EKF with the paper's ``P0, Q, R`` (eq. 63): at step ``k`` the "measurement" is the
 reference pose ``q_r,k`` the last input should have reached, the model is the pose it reached,
-``h(theta) = q_hat_k`` with ``dh/dtheta = J_{k-1} dNN_c/dtheta(phi_{k-1})`` (``J`` the exact ZOH plant
-Jacobian), and the innovation is ``q_r,k - q_hat_k`` (heading wrapped).
+``h(theta) = q_hat_k`` with ``dh/dtheta = J_{k-1} dNN_c/dtheta(phi_{k-1})`` (``J`` the exact
+ZOH plant Jacobian), and the innovation is ``q_r,k - q_hat_k`` (heading wrapped).
 """
 
 from __future__ import annotations
