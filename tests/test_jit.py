@@ -15,7 +15,7 @@ def test_prune_keeps_the_current_and_the_newest_old_caches(tmp_path):
         os.utime(d, (1_000_000 + i, 1_000_000 + i))  # numba-06 is the newest
     (tmp_path / "other").mkdir()  # not a numba cache: never touched
     current = dirs[0]  # the oldest by mtime, but it is the one in use
-    _jit._prune_old_caches(str(current), keep=3)
+    _jit.prune_old_caches(str(current), keep=3)
     left = sorted(p.name for p in tmp_path.iterdir())
     assert left == ["numba-00", "numba-04", "numba-05", "numba-06", "other"]
 

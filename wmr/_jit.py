@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numba
 
-__all__ = ["njit", "CACHE_DIR", "KEEP_OLD_CACHES"]
+__all__ = ["njit", "CACHE_DIR", "KEEP_OLD_CACHES", "prune_old_caches"]
 
 
 def _cache_dir(package: Path | None = None) -> str:
@@ -38,11 +38,16 @@ def _cache_dir(package: Path | None = None) -> str:
 KEEP_OLD_CACHES = 3
 
 
-def _prune_old_caches(current: str, keep: int = KEEP_OLD_CACHES) -> None:
+def prune_old_caches(current: str | None = None, keep: int = KEEP_OLD_CACHES) -> None:
     """Remove all but the ``keep`` most recently modified ``numba-*`` folders other than
     ``current`` (each edit of the source leaves one behind; only the package's own folder is
     touched, never a user-set ``NUMBA_CACHE_DIR``).  Errors are ignored: another process may
-    be pruning too."""
+    be pruning too.  Called by the ``wmr`` command (never at import); a no-op when the user set
+    ``NUMBA_CACHE_DIR``."""
+    if current is None:
+        if os.environ.get("NUMBA_CACHE_DIR"):
+            return
+        current = CACHE_DIR
     here = Path(current)
     try:
         old = [p for p in here.parent.glob("numba-*") if p.is_dir() and p != here]
@@ -54,9 +59,8 @@ def _prune_old_caches(current: str, keep: int = KEEP_OLD_CACHES) -> None:
 
 
 CACHE_DIR = _cache_dir()
+# the kernels of this package cache here (numba reads the setting when it first writes a cache)
 numba.config.CACHE_DIR = CACHE_DIR
-if not os.environ.get("NUMBA_CACHE_DIR"):
-    _prune_old_caches(CACHE_DIR)
 
 
 def njit(fn=None, **kwargs):

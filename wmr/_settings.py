@@ -1,7 +1,8 @@
 """Validated frozen settings: TOML tables to dataclasses, with errors that name key and value.
 
 A settings class is a ``@dataclass(frozen=True)`` whose fields are annotated ``float``, ``int``,
-``bool``, ``str`` or ``tuple[float, ...]`` (the length of a tuple field is that of its default).
+``bool``, ``str`` or ``tuple[float, ...]`` (the length of a tuple field is that of its default;
+one number given for such a field sets every entry).
 :func:`from_table` converts a TOML table into it, rejecting unknown keys, wrong types, NaN/inf and
 wrong lengths; the class's ``__post_init__`` checks meaning (signs, ranges) and raises
 :class:`SettingError` naming the field.
@@ -128,8 +129,12 @@ def _convert(key: str, value: Any, annotation: Any, default: Any) -> Any:
         check(isinstance(value, str), key, value, "must be a string")
         return value
     if origin is tuple:
-        check(isinstance(value, list | tuple), key, value, "must be an array of numbers")
-        if default is not dataclasses.MISSING and default is not None:
+        has_length = default is not dataclasses.MISSING and default is not None
+        if has_length and isinstance(value, int | float) and not isinstance(value, bool):
+            value = [value] * len(default)  # one number sets every entry (mu = 0.9)
+        check(isinstance(value, list | tuple), key, value,
+              "must be an array of numbers" + (" or one number for all" if has_length else ""))
+        if has_length:
             n = len(default)
             check(len(value) == n, key, value, f"must have {n} elements, has {len(value)}")
         out = []

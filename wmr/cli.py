@@ -286,7 +286,10 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``wmr`` command; returns the exit code."""
     import matplotlib
 
+    from wmr._jit import prune_old_caches
+
     matplotlib.use("Agg")  # the command line writes figures to files; no display is needed
+    prune_old_caches()  # caches of earlier versions of the source (see wmr._jit)
     try:
         args = build_parser().parse_args(argv)
         return args.func(args)

@@ -14,18 +14,78 @@ A sampled reference is an array of shape ``(len(t), 5)`` with columns
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["KINDS", "path_derivatives", "sample", "ReferenceSampler"]
+__all__ = ["ReferenceKind", "KINDS", "path_derivatives", "sample", "ReferenceSampler"]
 
-#: Reference kinds and their required parameters.
-KINDS: dict[str, tuple[str, ...]] = {
-    "lemniscate": ("size", "period"),
-    "sinusoid": ("speed", "amplitude", "omega"),
-    "circle": ("radius", "period"),
-}
+
+def _lemniscate(params, t):
+    """Gerono: ``phi = 2 pi t / period``, ``x = a sin(phi)``, ``y = a sin(phi) cos(phi) =
+    (a/2) sin(2 phi)``, with ``a = size``."""
+    a, W = params["size"], 2.0 * math.pi / params["period"]
+    phi = W * t
+    s1, c1, s2, c2 = np.sin(phi), np.cos(phi), np.sin(2 * phi), np.cos(2 * phi)
+    W2 = W * W  # not W**2: float ** raises OverflowError where * gives inf
+    return a * s1, 0.5 * a * s2, a * W * c1, a * W * c2, -a * W2 * s1, -2 * a * W2 * s2
+
+
+def _sinusoid(params, t):
+    """``x = speed t``, ``y = amplitude sin(omega t)``."""
+    s, A, w = params["speed"], params["amplitude"], params["omega"]
+    sn, cs = np.sin(w * t), np.cos(w * t)
+    zero = np.zeros_like(t)
+    return s * t, A * sn, s + zero, A * w * cs, zero, -A * w * w * sn
+
+
+def _circle(params, t):
+    """``phi = 2 pi t / period``, ``x = radius cos(phi)``, ``y = radius sin(phi)``."""
+    R, W = params["radius"], 2.0 * math.pi / params["period"]
+    phi = W * t
+    sn, cs = np.sin(phi), np.cos(phi)
+    W2 = W * W
+    return R * cs, R * sn, -R * W * sn, R * W * cs, -R * W2 * cs, -R * W2 * sn
+
+
+@dataclass(frozen=True)
+class ReferenceKind:
+    """A reference kind: one row of :data:`KINDS` (a test runs over every row).
+
+    Attributes
+    ----------
+    name : str
+        The scenario's ``reference.kind``.
+    params : tuple of str
+        Its required numeric parameters (the keys of the ``[reference]`` table besides ``kind``).
+    positive : tuple of str
+        Those of ``params`` that must be > 0.
+    path : callable
+        ``path(params, t) -> (x, y, x', y', x'', y'')``: the path and its analytic first and
+        second time derivatives at the times ``t`` (an array), each of the shape of ``t``.
+    units : tuple of str
+        The unit of each parameter, for the settings reference.
+    """
+
+    name: str
+    params: tuple[str, ...]
+    positive: tuple[str, ...]
+    path: Callable
+    units: tuple[str, ...]
+
+
+#: The reference kinds, by name.
+KINDS: dict[str, ReferenceKind] = {
+    k.name: k
+    for k in (
+        ReferenceKind("lemniscate", ("size", "period"), ("size", "period"), _lemniscate,
+                      ("m", "s")),
+        ReferenceKind("sinusoid", ("speed", "amplitude", "omega"), ("speed",), _sinusoid,
+                      ("m/s", "m", "rad/s")),
+        ReferenceKind("circle", ("radius", "period"), ("radius", "period"), _circle, ("m", "s")),
+    )
+}  # fmt: skip
 
 
 def path_derivatives(kind: str, params: Mapping[str, float], t):
@@ -34,14 +94,8 @@ def path_derivatives(kind: str, params: Mapping[str, float], t):
     Returns
     -------
     tuple of ndarray
-        ``(x, y, xd, yd, xdd, ydd)``, each of the shape of ``t``.
-
-    Notes
-    -----
-    - lemniscate (Gerono): ``phi = 2 pi t / period``, ``x = a sin(phi)``,
-      ``y = a sin(phi) cos(phi) = (a/2) sin(2 phi)``, with ``a = size``.
-    - sinusoid: ``x = speed t``, ``y = amplitude sin(omega t)``.
-    - circle: ``phi = 2 pi t / period``, ``x = radius cos(phi)``, ``y = radius sin(phi)``.
+        ``(x, y, xd, yd, xdd, ydd)``, each of the shape of ``t``; the formulas are in the
+        docstrings of the kinds' ``path`` functions (:data:`KINDS`).
     """
     t = np.asarray(t, dtype=float)
     if kind not in KINDS:
@@ -49,27 +103,7 @@ def path_derivatives(kind: str, params: Mapping[str, float], t):
     # absurd parameters (a period of 1e-200 s) overflow: return IEEE inf/nan, which the simulator
     # reports as a non-finite divergence, instead of raising or warning
     with np.errstate(over="ignore", invalid="ignore"):
-        return _path_derivatives(kind, params, t)
-
-
-def _path_derivatives(kind, params, t):
-    if kind == "lemniscate":
-        a, W = params["size"], 2.0 * math.pi / params["period"]
-        phi = W * t
-        s1, c1, s2, c2 = np.sin(phi), np.cos(phi), np.sin(2 * phi), np.cos(2 * phi)
-        W2 = W * W  # not W**2: float ** raises OverflowError where * gives inf
-        return a * s1, 0.5 * a * s2, a * W * c1, a * W * c2, -a * W2 * s1, -2 * a * W2 * s2
-    if kind == "sinusoid":
-        s, A, w = params["speed"], params["amplitude"], params["omega"]
-        sn, cs = np.sin(w * t), np.cos(w * t)
-        zero = np.zeros_like(t)
-        return s * t, A * sn, s + zero, A * w * cs, zero, -A * w * w * sn
-    # circle
-    R, W = params["radius"], 2.0 * math.pi / params["period"]
-    phi = W * t
-    sn, cs = np.sin(phi), np.cos(phi)
-    W2 = W * W
-    return R * cs, R * sn, -R * W * sn, R * W * cs, -R * W2 * cs, -R * W2 * sn
+        return KINDS[kind].path(params, t)
 
 
 def _columns(kind, params, t):

@@ -256,17 +256,17 @@ def _build(data: Mapping[str, Any], source: str) -> Scenario:
     kind = _require(ref, "kind", "reference.")
     check(isinstance(kind, str) and kind in KINDS, "reference.kind", kind,
           f"unknown kind (known: {', '.join(KINDS)})")  # fmt: skip
+    spec = KINDS[kind]
     params = {}
     for key in ref:
         if key != "kind":
-            check(key in KINDS[kind], f"reference.{key}", ref[key],
+            check(key in spec.params, f"reference.{key}", ref[key],
                   f"unknown key for kind {kind!r} "
-                  f"(known: kind, {', '.join(KINDS[kind])})")  # fmt: skip
-    for key in KINDS[kind]:
+                  f"(known: kind, {', '.join(spec.params)})")  # fmt: skip
+    for key in spec.params:
         params[key] = number(f"reference.{key}", _require(ref, key, "reference."))
-    for key in ("size", "period", "speed", "radius"):
-        if key in params:
-            positive(f"reference.{key}", params[key])
+    for key in spec.positive:
+        positive(f"reference.{key}", params[key])
 
     noise = from_table(Noise, data.get("noise", {}), "noise")
     dist_tables = data.get("disturbance", [])
