@@ -1,4 +1,4 @@
-"""Command line: ``wmr run | reproduce | report | analyze | bench`` (DESIGN §3.2).
+"""Command line: ``wmr run | reproduce | report | analyze | bench | settings`` (DESIGN §3.2).
 
 Exit codes: 0 success; 2 bad input (one line ``error: ...`` on stderr naming the file, key and
 value; nothing written); 1 an unexpected failure.  A diverged run is a result, not an error.
@@ -240,6 +240,19 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def cmd_settings(args) -> int:
+    from wmr.io import atomic_write_text
+    from wmr.settings_reference import markdown
+
+    text = markdown()
+    if args.out is None:
+        print(text, end="")
+    else:
+        atomic_write_text(args.out, text)
+        print(f"wrote {args.out}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="wmr",
                      description="Adaptive trajectory tracking of wheeled mobile robots.")
@@ -273,6 +286,10 @@ def build_parser() -> argparse.ArgumentParser:
     ana.add_argument("--workers", type=_positive_int, default=None,
                      help="worker processes (default: all cores)")  # fmt: skip
     ana.set_defaults(func=cmd_analyze)
+
+    ref = sub.add_parser("settings", help="print the settings reference (every scenario key)")
+    ref.add_argument("--out", default=None, help="write it to this file (docs/settings.md)")
+    ref.set_defaults(func=cmd_settings)
 
     bench = sub.add_parser("bench", help="the side-by-side performance benchmark")
     bench.add_argument("--quick", action="store_true", help="a short benchmark (< 2 minutes)")

@@ -82,7 +82,13 @@ class ReferenceSpec:
 
 @dataclass(frozen=True)
 class Noise:
-    """Additive Gaussian pose-measurement noise: std of ``(x [m], y [m], theta [rad])``."""
+    """Additive Gaussian pose-measurement noise.
+
+    Attributes
+    ----------
+    pose_std : tuple of float [m, m, rad]
+        Std of the noise added to the measured ``(x, y, theta)`` at every step.
+    """
 
     pose_std: tuple[float, ...] = (0.0, 0.0, 0.0)
 
@@ -93,7 +99,17 @@ class Noise:
 
 @dataclass(frozen=True)
 class Disturbance:
-    """``velocity = (dv, dw)`` added to the commanded input for ``start <= t < stop`` [s]."""
+    """A window of additive input disturbance (``[[disturbance]]``, zero or more).
+
+    Attributes
+    ----------
+    start : float [s]
+        The window opens at ``t_k = start`` (>= 0, inside the run).
+    stop : float [s]
+        It closes before ``t_k = stop`` (> start): active for ``start <= t_k < stop``.
+    velocity : tuple of float [m/s, rad/s]
+        ``(dv, dw)`` added to the saturated command ``(v, w)`` before the plant.
+    """
 
     start: float
     stop: float
@@ -106,7 +122,15 @@ class Disturbance:
 
 @dataclass(frozen=True)
 class Limits:
-    """Actuator saturation ``|v| <= v_max`` [m/s], ``|w| <= w_max`` [rad/s] (inf: none)."""
+    """Actuator saturation, applied to the controllers' command before the disturbance.
+
+    Attributes
+    ----------
+    v_max : float [m/s]
+        ``|v| <= v_max`` (> 0; default inf: no limit).
+    w_max : float [rad/s]
+        ``|w| <= w_max`` (> 0; default inf: no limit).
+    """
 
     v_max: float = math.inf
     w_max: float = math.inf
@@ -123,13 +147,13 @@ class Estimator:
 
     Attributes
     ----------
-    pose_source : str
+    pose_source : str [-]
         ``"paper"``: only ``iapid-nn-dekf`` uses the filtered pose (the paper's scheme), the others
         the raw measurement; ``"filtered"``: every controller uses the EKF estimate; ``"raw"``:
         every controller uses the raw measurement.
-    process_std : tuple of float
-        Std of the EKF's process noise per step (x [m], y [m], theta [rad]).  Not in the paper.
-    min_measurement_std : float
+    process_std : tuple of float [m, m, rad]
+        Std of the EKF's process noise per step (x, y, theta).  Not in the paper.
+    min_measurement_std : float [m or rad]
         Floor on the EKF's measurement std (it uses the scenario's ``noise.pose_std``), so a
         noise-free scenario still has an invertible innovation covariance.
     """
@@ -168,7 +192,26 @@ class Estimator:
 
 @dataclass(frozen=True)
 class Scenario:
-    """A validated scenario.  Build it with :func:`load`; vary it with ``dataclasses.replace``."""
+    """A validated scenario.  Build it with :func:`load`; vary it with ``dataclasses.replace``.
+
+    Attributes
+    ----------
+    name : str [-]
+        Required; usable as a folder name (``wmr run`` writes to ``wmr-runs/<name>``).
+    duration : float [s]
+        Required, > 0, a whole number of steps of ``dt`` (N = duration / dt steps).
+    dt : float [s]
+        Required, > 0: the sample period of measurement and control.
+    initial_pose : tuple of float [m, m, rad]
+        Required: the robot's ``(x, y, theta)`` at ``t = 0``.
+    integrator : str [-]
+        The plant's integration over a sample with the input held: ``"exact"`` (the arc, default),
+        ``"euler"`` or ``"rk4"``.
+    seed : int [-]
+        Default seed of a run (>= 0); ``--seed`` overrides it.
+    divergence_bound : float [m]
+        A run stops, diverged, when the position error exceeds it (> 0; default 10).
+    """
 
     name: str
     duration: float

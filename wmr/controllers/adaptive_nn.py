@@ -54,13 +54,13 @@ class Settings:
 
     Attributes
     ----------
-    gains : tuple of float
+    gains : tuple of float [1/s, 1/m^2, 1/m]
         Backstepping gains ``(k1, k2, k3)`` of the base law (as ``backstepping``'s default).
-    hidden : int
+    hidden : int [-]
         Hidden tanh units of the compensator network (not in the paper).
-    p0, q, r : float
+    p0, q, r : float [-]
         Weight-EKF ``P0 = p0 I``, ``Q = q I``, ``R = r I_3`` (the paper's eq. 63 values).
-    printed_rotation : bool
+    printed_rotation : bool [-]
         Use the paper's printed error matrix of eqs. 4/6.
     """
 

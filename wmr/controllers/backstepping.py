@@ -33,11 +33,11 @@ class Settings:
 
     Attributes
     ----------
-    gains : tuple of float
-        ``(k1 [1/s], k2 [1/m^2], k3 [1/m])``, each > 0.  Default ``(2, 10, 4)``: of the order of
+    gains : tuple of float [1/s, 1/m^2, 1/m]
+        ``(k1, k2, k3)``, each > 0.  Default ``(2, 10, 4)``: of the order of
         published values (notes §4.1); damping ``zeta = k3 / (2 sqrt(k2)) = 0.63`` of the
         linearised lateral loop (critical damping would need ``k3 = 2 sqrt(k2) = 6.3``).
-    printed_rotation : bool
+    printed_rotation : bool [-]
         Use the paper's printed (wrong) error rotation of eqs. 4/6 instead of the rotation.
     """
 

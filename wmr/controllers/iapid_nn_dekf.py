@@ -50,13 +50,13 @@ class Settings(pid.Settings):
 
     Attributes
     ----------
-    hidden : int
+    hidden : int [-]
         Hidden tanh units (not in the paper; 10 gives n = 83 weights).
-    p0, q, r : float
+    p0, q, r : float [-]
         Weight-filter ``P0 = p0 I``, ``Q = q I``, ``R = r I_3``: the paper's eq. (63) values.
-    output_scale : float
+    output_scale : float [-]
         Std scale of the initial output weights (small: the network starts near zero).
-    printed_jacobian : bool
+    printed_jacobian : bool [-]
         Use the paper's printed eqs. 22-24 for the input Jacobian (errata E7).
     """
 
@@ -80,7 +80,8 @@ def pack(settings: Settings, scenario, rng):
     """``(p, s, theta, P)``: PID parameters, network weights ``theta`` (n,) and covariance
     ``P0``."""
     n = nn.n_weights(N_IN, settings.hidden, N_OUT)
-    base = pid.make_params(settings, pid.JacobianSource.NETWORK, scenario, n_h=settings.hidden,
+    source = pid.JacobianSource.NETWORK if settings.adapt else pid.JacobianSource.NONE
+    base = pid.make_params(settings, source, scenario, n_h=settings.hidden,
                             printed_jacobian=settings.printed_jacobian,
                             q_diag=np.full(n, settings.q),
                             R=settings.r * np.eye(N_OUT))  # fmt: skip
@@ -160,6 +161,7 @@ def law(p, s, theta, P, q_hat, ref, dt, u):
     if s[S_STARTED] != 0.0:
         J = identify(p, s, theta, P, q_hat, dt)
         pid.store_jacobian(s, J)
-        pid.sgd_gain_step(p, s, J, e, q_hat[2])
+        if p.jacobian_source != pid.JacobianSource.NONE:  # adapt = false: identify only
+            pid.sgd_gain_step(p, s, J, e, q_hat[2])
     pid.pid_output(p, s, e, ref, dt, u)
     pid.remember(s, q_hat, u)

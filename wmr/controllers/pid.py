@@ -94,26 +94,27 @@ class Settings:
 
     Attributes
     ----------
-    gains : tuple of float
+    gains : tuple of float [SI]
         Initial ``(Kpv, Kiv, Kdv, Kpw, Kiw, Kdw)``.  Not in the paper; default
         ``(5, 5, 0, 10, 2, 0)``: a fixed PID that tracks the sinusoid to cm level with the literal
         eq. 7 (reproduction-notes §5.4).
-    mu : tuple of float
+    mu : tuple of float [-]
         SGD learning rates per gain (eq. 10); the paper's 0.9 for all.
-    alpha : tuple of float
+    alpha : tuple of float [-]
         Cost weights of eq. (8); not in the paper, 1 each (``alpha2`` has no effect with the exact
         Jacobian: notes §4.3).
-    gain_min, gain_max : tuple of float
+    gain_min, gain_max : tuple of float [SI]
         Clamp of each gain during adaptation (errata E5d).  Not in the paper.  ``Kd <= 0.5``: noise
         on the measured pose drives the derivative gains up (DESIGN §5), and the linearised loop
         at the default gains is unstable beyond ``Kdv ~ 0.98``, ``Kdw ~ 0.95``
         (``analysis/margins.py``); 0.5 keeps a factor of ~2 of margin.
-    feed_forward : bool
+    feed_forward : bool [-]
         Add ``(v_r cos e3, w_r)`` to eq. 7 (not in the paper).
-    printed_rotation : bool
+    printed_rotation : bool [-]
         Use the paper's printed error matrix of eqs. 4/6 (errata E3) instead of the rotation.
-    adapt : bool
-        Adapt the gains (``adaptive-pid``); False gives the fixed ``pid``.
+    adapt : bool [-]
+        Adapt the gains (``adaptive-pid``); False gives the fixed ``pid`` (and an
+        ``iapid-nn-dekf`` that identifies the plant but does not tune its gains).
     """
 
     gains: tuple[float, ...] = (5.0, 5.0, 0.0, 10.0, 2.0, 0.0)
