@@ -1,7 +1,10 @@
 """The generated reproduction and stability/boundedness report: ``paper/report.md``.
 
-Every number in the report is read from ``paper/results/`` (or from the shipped scenario files and
-settings defaults, for the assumptions table); nothing is typed by hand.  ``main(out)`` rewrites
+The header, the assumptions (values the paper does not give, read from the shipped scenario
+files and settings defaults), the errata with the evidence from the stored records of the
+reproduction, jacobians and boundedness studies, then the section of every registered study
+(``analysis.STUDIES``, in that order) whose record is stored: ``study.render(record)``.  Every
+number is read from ``results/``; nothing is typed by hand.  ``main(out)`` rewrites
 ``out/report.md`` from what is stored there, deterministically.
 """
 
@@ -9,6 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import analysis
 from analysis import common
 from analysis.common import fmt
 from wmr import controllers
@@ -139,8 +143,6 @@ def build(out: str | Path) -> str:
     """The report's Markdown from the results stored in ``out``: the header, the assumptions,
     the errata, then the section of every registered study (``analysis.STUDIES``, in order)
     whose record is stored."""
-    import analysis
-
     out = Path(out)
     head = ["# wmr: reproduction and stability/boundedness report", "",
             "Silaa, Bencherif, Barambones, *Indirect Adaptive Control Using Neural Network and "
@@ -150,10 +152,10 @@ def build(out: str | Path) -> str:
             "## Assumptions: what the paper does not give, and what was used", "",
             *_assumptions(), "", *_errata(out)]  # fmt: skip
     sections = []
-    for name in analysis.STUDIES:
-        study = analysis.get(name)
-        record = common.load_record(out, study.STEM)
-        if record is not None:
+    for name in analysis.STUDIES:  # a study's STEM is its registry name
+        record = common.load_record(out, name)
+        if record is not None:  # only then import the study (some import heavy packages)
+            study = analysis.get(name)
             sections.append(study.render(record) if study.render is not None
                             else _study(out, study.STEM, study.TITLE, record))  # fmt: skip
     if not sections:

@@ -235,46 +235,40 @@ def check(record: dict) -> None:
 # --- Rendering: the tables and the report's sections, from the record ------------------------
 
 
-def _mean_std(mean, std) -> str:
-    return "—" if mean is None else f"{mean:.4f} ± {std:.4f}"
+def _table_cells(record: dict, scenario: str):
+    """Per row of Tables 1-3: (controller, axis index, axis, paper's RMSE, our mean, our std,
+    "diverged/seeds"), the paper's controllers in table order."""
+    entry = record["scenarios"][scenario]
+    for name in (n for n in controllers.PAPER_NAMES if n in entry["runs"]):
+        rec = entry["runs"][name]["default"]
+        for i, axis in enumerate(AXES):
+            yield (name, i, axis, PAPER_RMSE[scenario][name][i], rec[axis]["mean"],
+                   rec[axis]["std"], f"{rec['n_diverged']}/{rec['n_seeds']}")  # fmt: skip
 
 
 def table_markdown(record: dict, scenario: str) -> str:
     """Table 1, 2 or 3 (``scenario``) in Markdown: the paper's RMSE beside ours and the ratio."""
-    num = TABLE_NUMBER[scenario]
-    entry = record["scenarios"][scenario]
-    md = [f"Table {num} ({scenario}): RMSE, paper vs this reproduction (mean ± std over seeds, "
-          f"ratio = ours / paper)", "",
+    md = [f"Table {TABLE_NUMBER[scenario]} ({scenario}): RMSE, paper vs this reproduction "
+          f"(mean ± std over seeds, ratio = ours / paper)", "",
           "| controller | axis | paper | ours | ratio | diverged |", "|---|---|---|---|---|---|"]
-    for name in (n for n in controllers.PAPER_NAMES if n in entry["runs"]):
-        rec = entry["runs"][name]["default"]
-        for i, axis in enumerate(AXES):
-            p = PAPER_RMSE[scenario][name][i]
-            m, s = rec[axis]["mean"], rec[axis]["std"]
-            ratio = "—" if m is None else f"{m / p:.2f}"
-            md.append(f"| {controllers.label(name)} | {axis} | {p:.4f} | {_mean_std(m, s)} | "
-                      f"{ratio} | {rec['n_diverged']}/{rec['n_seeds']} |")  # fmt: skip
+    for name, _, axis, p, m, s, div in _table_cells(record, scenario):
+        ours, ratio = ("—", "—") if m is None else (f"{m:.4f} ± {s:.4f}", f"{m / p:.2f}")
+        md.append(f"| {controllers.label(name)} | {axis} | {p:.4f} | {ours} | {ratio} | {div} |")
     return "\n".join(md) + "\n"
 
 
 def table_latex(record: dict, scenario: str) -> str:
     """Table 1, 2 or 3 (``scenario``) as a LaTeX booktabs tabular."""
-    entry = record["scenarios"][scenario]
     tex = [r"\begin{tabular}{llrrrr}", r"\toprule",
            r"Controller & Axis & Paper & Ours (mean $\pm$ std) & Ratio & Diverged \\",
            r"\midrule"]  # fmt: skip
-    for name in (n for n in controllers.PAPER_NAMES if n in entry["runs"]):
-        rec = entry["runs"][name]["default"]
-        for i, axis in enumerate(AXES):
-            p = PAPER_RMSE[scenario][name][i]
-            m, s = rec[axis]["mean"], rec[axis]["std"]
-            ratio = "--" if m is None else f"{m / p:.2f}"
-            ours = "--" if m is None else f"{m:.4f} $\\pm$ {s:.4f}"
-            sym = "\\theta" if axis == "theta" else axis
-            first = controllers.label(name) if i == 0 else ""
-            div = f"{rec['n_diverged']}/{rec['n_seeds']}"
-            tex.append(f"{first} & ${sym}$ & {p:.4f} & {ours} & {ratio} & {div} \\\\")
-        tex.append(r"\midrule" if name != controllers.PAPER_NAMES[-1] else r"\bottomrule")
+    for name, i, axis, p, m, s, div in _table_cells(record, scenario):
+        ours, ratio = ("--", "--") if m is None else (f"{m:.4f} $\\pm$ {s:.4f}", f"{m / p:.2f}")
+        first = controllers.label(name) if i == 0 else ""
+        sym = "\\theta" if axis == "theta" else axis
+        tex.append(f"{first} & ${sym}$ & {p:.4f} & {ours} & {ratio} & {div} \\\\")
+        if i == len(AXES) - 1:
+            tex.append(r"\midrule" if name != controllers.PAPER_NAMES[-1] else r"\bottomrule")
     tex.append(r"\end{tabular}")
     return "\n".join(tex) + "\n"
 
