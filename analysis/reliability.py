@@ -1,16 +1,17 @@
 """Reliability study (issue 7): bad inputs tried, faults injected, long runs, determinism.
 
-Writes ``out/results/reliability.json`` (the report's reliability section) with, for each check,
-what was tried and what happened.  ``main`` ends by asserting every outcome is the expected one.
+``run`` writes ``out/results/reliability.json`` with, for each check, what was tried and what
+happened, and ``out/tables/reliability.md``; ``check`` asserts every outcome is the expected one;
+``render`` gives the report's "Reliability" section.
 """
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import dataclasses
 import io
 import math
+import sys
 import tempfile
 import time
 import tracemalloc
@@ -18,15 +19,19 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis import common
+from analysis.common import fmt
 from wmr import cli, controllers
 from wmr import scenario as scn
 from wmr.ekf import repair_covariance
-from wmr.io import write_json
 from wmr.sim import simulate
 from wmr.study import Job, run_jobs
 
-__all__ = ["BAD_SCENARIOS", "bad_inputs", "long_runs", "seam_crossings", "fault_injection",
-           "determinism", "main"]  # fmt: skip
+__all__ = ["STEM", "TITLE", "BAD_SCENARIOS", "BAD_OPTIONS", "bad_inputs", "long_runs",
+           "seam_crossings", "fault_injection", "determinism", "run", "check", "table", "render"]
+
+STEM = "reliability"
+TITLE = "Reliability"
 
 _VALID = """name = "r"
 duration = 2.0
@@ -202,51 +207,99 @@ def determinism() -> dict:
     return {"runs": len(jobs), "serial_equals_parallel": a == b, "parallel_repeatable": b == c}
 
 
-def main(out: str | Path = "paper", hours: float = 1.0) -> dict:
-    """Run every check, write ``results/reliability.json`` and assert the expected outcomes."""
-    result = {"bad_inputs": bad_inputs(), "long_runs": long_runs(hours),
-              "seam": seam_crossings(), "faults": fault_injection(),
+def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
+    """Run every check into ``out`` and write the record ``results/reliability.json`` and
+    ``tables/reliability.md``; return the record.  ``quick``: a 3-minute long run instead of an
+    hour and 6 turns of the circle instead of 50.  The determinism check always compares the
+    serial path with 2 workers (``workers`` is not used)."""
+    record = {"bad_inputs": bad_inputs(), "long_runs": long_runs(0.05 if quick else 1.0),
+              "seam": seam_crossings(6 if quick else 50), "faults": fault_injection(),
               "determinism": determinism()}  # fmt: skip
-    bi = result["bad_inputs"]
-    result["summary"] = {
+    bi = record["bad_inputs"]
+    record["summary"] = {
         "bad_inputs_tried": bi["tried"], "bad_inputs_as_expected": bi["as_expected"],
         "long_runs_finite": all(v["finite"] and not v["diverged"]
-                                for v in result["long_runs"].values()),
-        "seam_no_divergence": all(not v["diverged"] for k, v in result["seam"].items()
+                                for v in record["long_runs"].values()),
+        "seam_no_divergence": all(not v["diverged"] for k, v in record["seam"].items()
                                   if isinstance(v, dict)),
-        "serial_equals_parallel": result["determinism"]["serial_equals_parallel"],
-        "saturation_respected": all(result["faults"]["saturation_respected"].values()),
+        "serial_equals_parallel": record["determinism"]["serial_equals_parallel"],
+        "saturation_respected": all(record["faults"]["saturation_respected"].values()),
     }  # fmt: skip
-    write_json(Path(out) / "results" / "reliability.json", result)
-    s = result["summary"]
-    assert s["bad_inputs_as_expected"] == s["bad_inputs_tried"], [
-        c for c in bi["cases"] if c["exit_code"] != 2 or c["traceback"] or c["wrote_output"]]
-    assert s["long_runs_finite"] and s["serial_equals_parallel"] and s["saturation_respected"], s
-    for name, v in result["long_runs"].items():  # memory does not grow with run length
-        assert v["peak_traced_mb_long"] < 1.5 * v["peak_traced_mb_short"] + 1.0, (name, v)
-    return result
-
-
-
-# --- Study shape (DESIGN §3.6); transitional adapter, replaced when the module is split --------
-STEM = "reliability"
-TITLE = "Reliability"
-
-
-def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
-    """Run the study into ``out`` (see :func:`main`)."""
-    return main(out)
+    common.write_record(out, STEM, record)
+    common.write_table(out, STEM, table(record))
+    return record
 
 
 def check(record: dict) -> None:
-    """The headline claims are asserted inside :func:`main` for now."""
+    """Every bad input exits 2 with one line and writes nothing; long runs stay finite and their
+    memory does not grow with the run length; serial and parallel rows are identical; every
+    controller respects the saturation."""
+    s = record["summary"]
+    assert s["bad_inputs_as_expected"] == s["bad_inputs_tried"], [
+        c for c in record["bad_inputs"]["cases"]
+        if c["exit_code"] != 2 or c["traceback"] or c["wrote_output"]]  # fmt: skip
+    assert s["long_runs_finite"] and s["serial_equals_parallel"] and s["saturation_respected"], s
+    for name, v in record["long_runs"].items():  # memory does not grow with run length
+        assert v["peak_traced_mb_long"] < 1.5 * v["peak_traced_mb_short"] + 1.0, (name, v)
 
 
-render = None  # the report renders this study's section from its stored files
+# --- Rendering: the report's section, from the record ------------------------------------------
+
+
+def _hours(steps: int) -> float:
+    """``steps`` of the lemniscate scenario (the long runs') in hours."""
+    return steps * scn.load(scn.builtin("lemniscate")).dt / 3600.0
+
+
+def table(record: dict) -> str:
+    """The bad inputs tried and the long runs (Markdown; ``tables/reliability.md``)."""
+    rows = []
+    for c in record["bad_inputs"]["cases"]:
+        msg = c["message"].replace("|", "\\|")
+        msg = msg if len(msg) < 110 else msg[:107] + "..."
+        rows.append([c["input"], c["exit_code"], f"`{msg}`"])
+    lines = common.md_table(["bad input", "exit", "message"], rows)
+    long = record["long_runs"]
+    hours = round(_hours(next(iter(long.values()))["steps"]), 9)
+    simulated = "one simulated hour" if hours == 1 else f"{hours:g} simulated hours"
+    lines += ["", f"Long runs ({simulated}, no trajectory kept; memory traced by "
+              "tracemalloc):", ""]  # fmt: skip
+    header = ["controller", "steps", "finite", "position RMSE [m]", "wall [s]",
+              "peak MB (2 chunks)", f"peak MB ({hours:g} h)"]
+    rows = [[controllers.label(name), v["steps"], fmt(v["finite"]), fmt(v["rmse_position"]),
+             fmt(v["seconds"], 1), fmt(v["peak_traced_mb_short"], 2),
+             fmt(v["peak_traced_mb_long"], 2)] for name, v in long.items()]  # fmt: skip
+    return "\n".join(lines + common.md_table(header, rows)) + "\n"
+
+
+def render(record: dict) -> str:
+    """The report's "Reliability" section."""
+    s = record["summary"]
+    notes = [f"Bad inputs tried through the CLI: {s['bad_inputs_tried']}; exit code 2 with one "
+             f"`error:` line, no traceback and nothing written: {s['bad_inputs_as_expected']}.",
+             f"Serial and 2-worker studies bit-identical: {fmt(s['serial_equals_parallel'])}; "
+             f"saturation respected by every controller: {fmt(s['saturation_respected'])}."]
+    seam = record["seam"]
+    lines = [f"Heading seam: circles of {seam['turns']} turns (the heading crosses ±π once a "
+             "turn), noise 0.01: "
+             + "; ".join(f"{controllers.label(k)} crossed {v['heading_seam_crossings']} times, "
+                         f"θ RMSE {fmt(v['rmse_theta'])}"
+                         for k, v in seam.items() if isinstance(v, dict)) + ".", ""]  # fmt: skip
+    f = record["faults"]
+    neg, wild = f["negative_covariance_diagonal"], f["overflowing_controller"]
+    lines += ["Faults injected:", "",
+              f"- a covariance with a negative diagonal entry: repaired {fmt(neg['repaired'])}, "
+              f"positive definite after {fmt(neg['positive_definite_after'])};",
+              f"- a controller whose output overflows (backstepping gains 1e308): diverged at "
+              f"{fmt(wild['diverged_at'], 2)} s ({wild['cause']});",
+              "- pose noise std (5 m, 5 m, 3 rad) with a 2 m divergence bound: "
+              + "; ".join(f"{controllers.label(k)} "
+                          + (f"diverged at {fmt(v['diverged_at'], 2)} s ({v['cause']})"
+                             if v["diverged"] else "did not diverge")
+                          for k, v in f["huge_noise"].items() if k != "control run")
+              + "; the next run of the same study completed normally.", ""]  # fmt: skip
+    return common.section(TITLE, notes, table(record)) + "\n" + "\n".join(lines)
+
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", default="paper")
-    parser.add_argument("--hours", type=float, default=1.0)
-    a = parser.parse_args()
-    main(a.out, a.hours)
+    sys.exit(common.main(sys.modules[__name__]))

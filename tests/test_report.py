@@ -1,8 +1,10 @@
 """The generated report: byte-identical to what ``wmr report`` writes from the committed results,
-every linked image exists; an interrupted ``wmr reproduce`` leaves the previous results intact."""
+every linked image exists, each stored study's section in registry order; an interrupted
+``wmr reproduce`` leaves the previous results intact."""
 
 from __future__ import annotations
 
+import json
 import re
 import shutil
 import types
@@ -10,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+import analysis
 from analysis import report
 from wmr import cli
 
@@ -37,6 +40,42 @@ def test_every_image_the_report_links_exists_and_there_are_at_least_six():
     links = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", (PAPER / "report.md").read_text())
     assert len(set(links)) >= 6
     assert [x for x in links if not (PAPER / x).is_file()] == []
+
+
+def _study(stem, title, render=None):
+    return types.SimpleNamespace(STEM=stem, TITLE=title, render=render)
+
+
+def test_each_stored_study_renders_its_section_in_registry_order(tmp_path, monkeypatch):
+    """A study with ``render`` gives its own section; one without (``render = None``, while it is
+    being converted) gets the generic one: notes, ``tables/STEM.md``, ``figures/STEM*.png`` (the
+    performance figure under either name); a study without a record is left out."""
+    studies = {"alpha": _study("alpha", "Alpha", lambda record: f"## Alpha\n\n{record['x']}\n"),
+               "missing": _study("missing", "Missing", lambda record: "## Missing\n"),
+               "performance": _study("performance", "Performance")}  # fmt: skip
+    monkeypatch.setattr(analysis, "STUDIES", tuple(studies))
+    monkeypatch.setattr(analysis, "get", studies.__getitem__)
+    for stem, record in (("alpha", {"x": 42}), ("performance", {"notes": ["a note"]})):
+        (tmp_path / "results").mkdir(exist_ok=True)
+        (tmp_path / "results" / f"{stem}.json").write_text(json.dumps(record))
+    (tmp_path / "tables").mkdir()
+    (tmp_path / "tables" / "performance.md").write_text("| a |\n|---|\n| 1 |\n")
+    (tmp_path / "figures").mkdir()
+    for name in ("perf_vs_weights.png", "performance_vs_weights.png", "other.png"):
+        (tmp_path / "figures" / name).write_bytes(b"")
+    text = report.build(tmp_path)
+    assert re.findall(r"^## (.+)$", text, flags=re.M)[-2:] == ["Alpha", "Performance"]
+    figures = "".join(f"![{f}](figures/{f})\n"
+                      for f in ("perf_vs_weights.png", "performance_vs_weights.png"))
+    assert text.endswith("## Alpha\n\n42\n\n## Performance\n\n- a note\n\n| a |\n|---|\n| 1 |\n\n"
+                         + figures)
+
+
+def test_report_without_study_records_says_so(tmp_path):
+    (tmp_path / "results").mkdir()
+    text = report.build(tmp_path)
+    assert text.startswith("# wmr: reproduction and stability/boundedness report\n")
+    assert "## Errata" not in text and text.endswith("Not generated yet (`wmr reproduce`).\n")
 
 
 def test_report_without_results_is_a_usage_error(tmp_path, capsys):

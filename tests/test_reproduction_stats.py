@@ -1,4 +1,5 @@
-"""The reproduction study's statistics on hand-made rows: means, stds, ranking, paired tests."""
+"""The reproduction study's statistics on hand-made rows: means, stds, ranking, paired tests
+(``analysis._reproduction_stats`` and ``analysis.reproduction.summarise``)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from analysis import _reproduction_stats as st
 from analysis import reproduction as rep
-from wmr.study import Row
+from wmr.result import Row
 
 
 def _row(controller, seed, pos, scenario="lemniscate", diverged=False):
@@ -20,15 +22,15 @@ def _row(controller, seed, pos, scenario="lemniscate", diverged=False):
 def test_paired_difference_wins_and_wilcoxon():
     a = np.array([1.0, 2.0, 3.0, 4.0, 5.0])
     b = a + np.array([0.5, 0.4, 0.6, 0.3, 0.7])  # a better on every seed
-    r = rep._paired(a, b)
+    r = st.paired(a, b)
     assert r["n"] == 5 and r["wins"] == 5
     assert r["mean_diff"] == pytest.approx(-0.5)
     assert r["std_diff"] == pytest.approx(np.std(a - b, ddof=1))
     assert r["wilcoxon_p"] == pytest.approx(0.0625)  # exact two-sided, n = 5, all one sign: 2/2^5
-    assert rep._paired(a, a)["wilcoxon_p"] == 1.0  # no difference at all
+    assert st.paired(a, a)["wilcoxon_p"] == 1.0  # no difference at all
     nan_b = b.copy()
     nan_b[0] = np.nan
-    assert rep._paired(a, nan_b)["n"] == 4  # a diverged seed is left out of the pairing
+    assert st.paired(a, nan_b)["n"] == 4  # a diverged seed is left out of the pairing
 
 
 def test_summarise_statistics_and_rankings():
@@ -58,8 +60,8 @@ def test_a_diverging_controller_ranks_last_and_is_counted():
 def test_holm_adjustment_matches_the_step_down_definition():
     p = [0.01, 0.04, 0.03, 0.005]
     # sorted 0.005, 0.01, 0.03, 0.04 -> 4*0.005, 3*0.01, 2*0.03, 1*0.04, made monotone
-    assert rep._holm(p) == pytest.approx([0.03, 0.06, 0.06, 0.02])
-    assert rep._holm([0.5, 0.9]) == pytest.approx([1.0, 1.0])  # capped at 1
+    assert st.holm(p) == pytest.approx([0.03, 0.06, 0.06, 0.02])
+    assert st.holm([0.5, 0.9]) == pytest.approx([1.0, 1.0])  # capped at 1
 
 
 def test_tie_aware_check_ignores_noise_and_flags_significant_reversals():
@@ -77,5 +79,5 @@ def test_tie_aware_check_ignores_noise_and_flags_significant_reversals():
     flagged = {(c["paper_worse"], c["paper_better"]) for c in contra}
     assert flagged == {("backstepping", "iapid-nn-dekf"), ("backstepping", "adaptive-pid"),
                        ("backstepping", "adaptive-nn")}  # fmt: skip
-    assert all(c["p_holm"] < rep.ALPHA and c["mean_diff"] > 0
+    assert all(c["p_holm"] < st.ALPHA and c["mean_diff"] > 0
                for c in out["paper_ranking_contradicted"]["x"])  # fmt: skip

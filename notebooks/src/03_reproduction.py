@@ -25,7 +25,7 @@ for sc in scenarios:
         rs = [r for r in rows if r.scenario == sc and r.controller == c]
         ours = [np.mean([getattr(r, f"rmse_{a}") for r in rs]) for a in ("x", "y", "theta")]
         paper = PAPER_RMSE[sc][c]
-        print(f"  {controllers.get(c).label:<14}" + " ".join(f"{p:.4f}" for p in paper)
+        print(f"  {controllers.label(c):<14}" + " ".join(f"{p:.4f}" for p in paper)
               + "  | " + " ".join(f"{o:.4f}" for o in ours))
 # %% [md]
 # ## Figure 4 equivalent: the paths (seed 0)
@@ -39,6 +39,6 @@ fig = tracking_figure(runs, title="sinusoid with perturbation (15–20 s), seed 
 # gains drift by a few per cent in 40 s: APID and IAPID-NN-DEKF behave almost like the fixed PID.
 # %%
 for c in ("adaptive-pid", "iapid-nn-dekf"):
-    r = simulate(scenarios["lemniscate"], c, seed=0)
-    K0, K1 = r.state[0, :6], r.state[-1, :6]
+    K = simulate(scenarios["lemniscate"], c, seed=0).gains()  # (Kpv, Kiv, Kdv, Kpw, Kiw, Kdw)
+    K0, K1 = K[0], K[-1]
     print(c, "gains start", np.round(K0, 3), "end", np.round(K1, 3))
