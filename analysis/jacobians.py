@@ -43,6 +43,17 @@ from wmr.identification import QUALITY_KEYS, JacobianQuality, jacobian_quality
 __all__ = [
     "STEM",
     "TITLE",
+    # the point study (analysis._jacobian_points), re-exported
+    "SEED",
+    "CLOSED_FORM_TOL",
+    "PRINTED_MIN_ERROR",
+    "IDENTITY_TOL",
+    "PRINTED_MIN_RESIDUAL",
+    "DET_TOL",
+    "point_study",
+    "along_run",
+    "plot_errors",
+    # the learned Jacobian and the study
     "CONTROLLER",
     "POINTS",
     "LEARNED_SEEDS",

@@ -103,7 +103,8 @@ class JacobianQuality:
     rel_error_v, rel_error_w : ndarray
         The same per column (the ``v`` and the ``w`` column).
     norm_ratio : ndarray
-        ``||J_NN||_F / ||J||_F``: a scale error acts on the SGD step as a learning-rate factor.
+        ``||J_NN||_F / ||J||_F`` (inf where ``J = 0``): a scale error acts on the SGD step as
+        a learning-rate factor.
     matrix_cosine : ndarray
         Cosine of ``J_NN`` and ``J`` as 6-vectors (the error up to scale).
     cosine : ndarray
@@ -184,12 +185,14 @@ def jacobian_quality(run, true_jacobian: TrueJacobian | None = None, *,
         g_t[k - 1] = J_t[k - 1].T @ te
     norm_l = np.linalg.norm(J_l, axis=(1, 2))
     norm_t = np.linalg.norm(J_t, axis=(1, 2))
+    with np.errstate(divide="ignore", invalid="ignore"):  # a zero true J: inf (or NaN if both)
+        norm_ratio = norm_l / norm_t
     return JacobianQuality(
         t=run.t[1:n],
         rel_error=rel_error(J_l, J_t),
         rel_error_v=rel_error(J_l[:, :, :1], J_t[:, :, :1]),
         rel_error_w=rel_error(J_l[:, :, 1:], J_t[:, :, 1:]),
-        norm_ratio=norm_l / norm_t,
+        norm_ratio=norm_ratio,
         matrix_cosine=np.sum(J_l * J_t, axis=(1, 2)) / np.maximum(norm_l * norm_t, _TINY),
         cosine=_cosine(g_l, g_t),
         sign_v=_same_sign(g_l[:, 0], g_t[:, 0]),
