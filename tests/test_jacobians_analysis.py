@@ -40,10 +40,9 @@ def small_study():
     return pts.point_study(points=SMALL, seed=1)
 
 
-@pytest.fixture(scope="module")
-def lemniscate_short():
-    sc = scn.load(scn.builtin("lemniscate"))
-    return dataclasses.replace(sc, duration=4.0)
+def _lemniscate(duration: float = 4.0) -> scn.Scenario:
+    """The paper's lemniscate cut to ``duration`` [s]."""
+    return dataclasses.replace(scn.load(scn.builtin("lemniscate")), duration=duration)
 
 
 @pytest.fixture(scope="module")
@@ -154,8 +153,8 @@ def test_rolling_mean_has_no_zero_padding_and_skips_nan():
 # ---------------------------------------------------------------------------------------------
 
 
-def test_along_run_and_learned_summary(lemniscate_short):
-    sc = lemniscate_short
+def test_along_run_and_learned_summary():
+    sc = _lemniscate()
     r = simulate(sc, jac.CONTROLLER, seed=0)
     a = pts.along_run(r, max_points=100)
     assert a["steps"] == 100
@@ -176,9 +175,9 @@ def test_along_run_and_learned_summary(lemniscate_short):
     assert 0.0 <= s["sign_w"]["mean"] <= 1.0
 
 
-def test_along_run_reads_the_network_size_from_the_settings(lemniscate_short):
+def test_along_run_reads_the_network_size_from_the_settings():
     """A 7-unit identifier: the weights and the size come from the run's record."""
-    sc = lemniscate_short
+    sc = _lemniscate(1.0)
     settings = dataclasses.replace(sc.settings(jac.CONTROLLER), hidden=7)
     r = simulate(sc, jac.CONTROLLER, seed=0, settings=settings)
     assert r.settings.hidden == 7
