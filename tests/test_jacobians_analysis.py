@@ -1,25 +1,35 @@
-"""Checks of the helpers of ``analysis/jacobians.py`` (the study itself checks its claims in main).
+"""Tests of the ``jacobians`` study (``analysis/jacobians.py``, ``analysis/_jacobian_points.py``).
 
-Small and fast: the relative error on hand cases, the batched CasADi evaluation against single
-calls, the point comparisons at ~50 points with the study's own thresholds, the printed network
-Jacobian failing at every size, and the learned-vs-true bookkeeping against a run whose logged
-Jacobian is the true one (``adaptive-pid`` logs the exact ZOH Jacobian in the same slots).
+The batched CasADi evaluation against single calls; the point comparisons at ~50 points with
+the study's own thresholds (CasADi AD is the oracle); the printed network Jacobian failing at
+every size; the along-run comparisons and the learned-Jacobian summary on a short run; the study
+shape: ``run(tmp, quick=True)`` then ``check`` on the record and on the record loaded back, the
+table and the report section rendered from it, and ``check``, the table and the section on the
+committed ``paper/`` record.  The learned-vs-true metrics are tested in
+``tests/test_identification.py``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
+from analysis import _jacobian_points as pts
+from analysis import common
 from analysis import jacobians as jac
-from wmr import kinematics as kin
 from wmr import scenario as scn
 from wmr import symbolic as sym
+from wmr.identification import jacobian_quality
 from wmr.sim import simulate
 
+PAPER = Path(__file__).resolve().parents[1] / "paper"
+needs_paper = pytest.mark.skipif(not (PAPER / "results" / "jacobians.json").exists(),
+                                 reason="paper/ not generated yet (make reproduce)")  # fmt: skip
 SMALL = 50  # random points per check in these tests
 # Identical formulas evaluated twice differ by nothing; rounding-level agreement is a few ulp.
 ROUNDING = 1e-14
@@ -27,43 +37,18 @@ ROUNDING = 1e-14
 
 @pytest.fixture(scope="module")
 def small_study():
-    return jac.point_study(points=SMALL, seed=1)
+    return pts.point_study(points=SMALL, seed=1)
+
+
+def _lemniscate(duration: float = 4.0) -> scn.Scenario:
+    """The paper's lemniscate cut to ``duration`` [s]."""
+    return dataclasses.replace(scn.load(scn.builtin("lemniscate")), duration=duration)
 
 
 @pytest.fixture(scope="module")
-def lemniscate_short():
-    sc = scn.load(scn.builtin("lemniscate"))
-    return dataclasses.replace(sc, duration=4.0)
-
-
-# ---------------------------------------------------------------------------------------------
-# rel_error
-# ---------------------------------------------------------------------------------------------
-
-
-def test_rel_error_hand_cases():
-    B = np.array([[3.0, 0.0], [0.0, 4.0]])  # ||B||_F = 5
-    assert jac.rel_error(B, B) == 0.0
-    assert jac.rel_error(B + [[0.0, 5.0], [0.0, 0.0]], B) == pytest.approx(1.0, rel=1e-15)
-    assert jac.rel_error(np.zeros((2, 2)), B) == pytest.approx(1.0, rel=1e-15)  # J = 0 scores 1
-    assert jac.rel_error(2 * B, B) == pytest.approx(1.0, rel=1e-15)
-    assert jac.rel_error(np.zeros((3, 2)), np.zeros((3, 2))) == 0.0  # both zero: no 0/0
-    assert jac.rel_error(np.ones((1, 1)), np.zeros((1, 1))) > 1e300  # B = 0, A != 0: huge
-    assert jac.rel_error([3.0, 4.0], [0.0, 0.0]) > 1e300  # 1-D: one row
-
-
-def test_rel_error_is_batched_over_leading_axes():
-    rng = np.random.default_rng(0)
-    A, B = rng.standard_normal((7, 3, 2)), rng.standard_normal((7, 3, 2))
-    r = jac.rel_error(A, B)
-    assert r.shape == (7,)
-    for i in range(7):
-        assert r[i] == pytest.approx(np.linalg.norm(A[i] - B[i]) / np.linalg.norm(B[i]), rel=1e-14)
-
-
-def test_rel_error_rejects_mismatched_shapes():
-    with pytest.raises(ValueError, match="shapes differ"):
-        jac.rel_error(np.zeros((3, 2)), np.zeros((2, 3)))
+def quick(tmp_path_factory):
+    out = tmp_path_factory.mktemp("jacobians")
+    return out, jac.run(out, quick=True)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -73,30 +58,30 @@ def test_rel_error_rejects_mismatched_shapes():
 
 def test_ad_batch_equals_single_calls():
     rng = np.random.default_rng(1)
-    pts = jac.unicycle_points(rng, 5, edges=False)
-    F, G = jac._ad_batch(sym.step_jacobian_function("rk4"), pts.q, pts.u, pts.dt)
+    p = pts.unicycle_points(rng, 5, edges=False)
+    F, G = pts._ad_batch(sym.step_jacobian_function("rk4"), p.q, p.u, p.dt)
     assert F.shape == (5, 3, 3) and G.shape == (5, 3, 2)
     f = sym.step_jacobian_function("rk4")
     for i in range(5):
-        Fi, Gi = f(pts.q[i], pts.u[i], pts.dt[i])
+        Fi, Gi = f(p.q[i], p.u[i], p.dt[i])
         assert_array_equal(F[i], Fi.full())
         assert_array_equal(G[i], Gi.full())
-    net = jac.network_points(rng, 4, 5, 3, edges=False)
-    (H,) = jac._ad_batch(sym.network_weight_jacobian_function(4, 5, 3), net.theta, net.x)
+    net = pts.network_points(rng, 4, 5, 3, edges=False)
+    (H,) = pts._ad_batch(sym.network_weight_jacobian_function(4, 5, 3), net.theta, net.x)
     h = sym.network_weight_jacobian_function(4, 5, 3)
     for i in range(3):
         assert_array_equal(H[i], h(net.theta[i], net.x[i]).full())
 
 
 def test_points_are_seeded_and_include_the_edges():
-    a = jac.unicycle_points(np.random.default_rng(3), 10)
-    b = jac.unicycle_points(np.random.default_rng(3), 10)
+    a = pts.unicycle_points(np.random.default_rng(3), 10)
+    b = pts.unicycle_points(np.random.default_rng(3), 10)
     assert_array_equal(a.q, b.q)
     assert_array_equal(a.u, b.u)
     assert len(a) > 10
     assert np.any(a.u[:, 0] == 0.0) and np.any(a.u[:, 1] == 0.0)
     assert np.any(a.q[:, 2] == np.pi) and np.any(a.q[:, 2] == -np.pi)
-    assert set(np.unique(a.dt)) == set(jac.DTS)
+    assert set(np.unique(a.dt)) == set(pts.DTS)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -130,34 +115,31 @@ def test_rotation_and_error_dynamics(small_study):
     assert rot["error_dynamics_median_residual"]["printed"] > jac.PRINTED_MIN_RESIDUAL
 
 
-def test_check_claims_passes_and_fails_loudly(small_study):
+def test_check_passes_and_fails_loudly(small_study):
     summary = small_study[0]
-    jac.check_claims(summary)
+    jac.check(summary)
     broken = {
         **summary,
         "network_input": {**summary["network_input"], "printed_median_rel_error": 0.01},
     }
     with pytest.raises(AssertionError, match="printed eqs. 22-24"):
-        jac.check_claims(broken)
+        jac.check(broken)
     broken = {**summary, "unicycle_step": {"rk4": {"max_rel_error": 1e-6}}}
     with pytest.raises(AssertionError, match="step rk4"):
-        jac.check_claims(broken)
+        jac.check(broken)
+    rot = {**summary["rotation"], "max_abs_corrected_det_minus_1": 1e-3}
+    with pytest.raises(AssertionError, match="corrected det T_e"):
+        jac.check({**summary, "rotation": rot})
 
 
 def test_printed_network_jacobian_is_zero_only_where_the_network_is_constant():
     """All-zero weights: both Jacobians are exactly zero, so the printed form 'agrees' there."""
-    pts = jac.network_points(np.random.default_rng(2), 4, 5, 0)
-    errs = jac.network_errors(pts)
-    zero = np.all(pts.theta == 0.0, axis=1)
+    p = pts.network_points(np.random.default_rng(2), 4, 5, 0)
+    errs = pts.network_errors(p)
+    zero = np.all(p.theta == 0.0, axis=1)
     assert zero.sum() == 1
     assert errs["input_printed"][zero] == 0.0
     assert np.all(errs["input_printed"][~zero] > jac.PRINTED_MIN_ERROR)
-
-
-def test_hidden_units_from_weight_count():
-    assert jac._hidden_units(83) == 10  # 10 (4 + 1 + 3) + 3
-    with pytest.raises(ValueError, match="do not fit"):
-        jac._hidden_units(84)
 
 
 def test_rolling_mean_has_no_zero_padding_and_skips_nan():
@@ -167,45 +149,41 @@ def test_rolling_mean_has_no_zero_padding_and_skips_nan():
 
 
 # ---------------------------------------------------------------------------------------------
-# Along runs and the learned-vs-true bookkeeping
+# Along runs and the learned-Jacobian summary
 # ---------------------------------------------------------------------------------------------
 
 
-def test_learned_vs_true_is_exact_for_the_adaptive_pid(lemniscate_short):
-    """``adaptive-pid`` logs the exact ZOH Jacobian at (q_hat_{k-1}, u_{k-1}) in the same slots:
-    fed to :func:`learned_vs_true` it must score zero error and perfect agreement, which checks
-    the time indices (J_{k-1} against the true Jacobian of the same step)."""
-    sc = lemniscate_short
-    r = simulate(sc, "adaptive-pid", seed=0)
-    d = jac.learned_vs_true(r, sc, sc.settings("adaptive-pid"))
-    assert len(d["t"]) == sc.n_steps - 1
-    assert np.max(d["rel_error"]) < ROUNDING
-    assert_allclose(d["norm_ratio"], 1.0, rtol=0, atol=ROUNDING)
-    assert np.nanmin(d["cosine"]) > 1 - ROUNDING
-    assert np.nanmin(d["sign_v"]) == 1.0 and np.nanmin(d["sign_w"]) == 1.0
-    # off by one step, the same logs no longer match
-    shifted = dataclasses.replace(r, q_hat=np.roll(r.q_hat, 1, axis=0))
-    assert (
-        np.median(jac.learned_vs_true(shifted, sc, sc.settings("adaptive-pid"))["rel_error"]) > 1e-3
-    )
-
-
-def test_along_run_and_learned_summary(lemniscate_short):
-    sc = lemniscate_short
+def test_along_run_and_learned_summary():
+    sc = _lemniscate()
     r = simulate(sc, jac.CONTROLLER, seed=0)
-    a = jac.along_run(r, max_points=100)
+    a = pts.along_run(r, max_points=100)
     assert a["steps"] == 100
     for e in a["unicycle_step"].values():
         assert e["max_rel_error"] < jac.CLOSED_FORM_TOL
     assert a["network_input"]["corrected_max_rel_error"] < jac.CLOSED_FORM_TOL
     assert a["network_weights"]["max_rel_error"] < jac.CLOSED_FORM_TOL
     assert a["error_dynamics_max_residual"]["corrected"] < jac.IDENTITY_TOL
-    s = jac.summarise_learned([jac.learned_vs_true(r, sc)])
-    assert s["seeds"] == 1
+    q = jacobian_quality(r, integrator=sc.integrator)
+    s = jac.summarise_learned([q, q])
+    assert s["seeds"] == 2
     assert set(jac.LEARNED_KEYS) <= set(s)
-    assert np.isfinite(s["rel_error"]["mean"]) and np.isfinite(s["rel_error_whole_run"]["mean"])
+    for key in jac.LEARNED_KEYS:  # the same run twice: its last-half mean, no spread
+        assert s[key] == {"mean": q.tail_mean(key), "std": 0.0}, key
+    assert s["rel_error_whole_run"]["mean"] == q.tail_mean("rel_error", start=0.0)
+    assert s["rel_error_final"] == [float(q.rel_error[-1])] * 2
     assert -1.0 <= s["cosine"]["mean"] <= 1.0
     assert 0.0 <= s["sign_w"]["mean"] <= 1.0
+
+
+def test_along_run_reads_the_network_size_from_the_settings():
+    """A 7-unit identifier: the weights and the size come from the run's record."""
+    sc = _lemniscate(1.0)
+    settings = dataclasses.replace(sc.settings(jac.CONTROLLER), hidden=7)
+    r = simulate(sc, jac.CONTROLLER, seed=0, settings=settings)
+    assert r.settings.hidden == 7
+    a = pts.along_run(r, max_points=20)
+    assert a["network_input"]["corrected_max_rel_error"] < jac.CLOSED_FORM_TOL
+    assert a["network_weights"]["max_rel_error"] < jac.CLOSED_FORM_TOL
 
 
 def test_without_noise_zeroes_only_the_noise():
@@ -215,10 +193,46 @@ def test_without_noise_zeroes_only_the_noise():
     assert q.reference == sc.reference and q.dt == sc.dt
 
 
-def test_true_jacobian_uses_the_scenario_integrator(lemniscate_short):
-    """With an Euler plant, the adaptive-pid's logged Euler Jacobian is still matched exactly."""
-    sc = dataclasses.replace(lemniscate_short, integrator="euler")
-    r = simulate(sc, "adaptive-pid", seed=0)
-    d = jac.learned_vs_true(r, sc, sc.settings("adaptive-pid"))
-    assert np.max(d["rel_error"]) < ROUNDING
-    assert kin.integrator_code(sc.integrator) == kin.EULER
+# ---------------------------------------------------------------------------------------------
+# The study shape
+# ---------------------------------------------------------------------------------------------
+
+
+def test_quick_run_writes_its_files_and_checks(quick):
+    out, record = quick
+    jac.check(record)
+    loaded = common.load_record(out, jac.STEM)
+    assert loaded == json.loads(json.dumps(record))
+    jac.check(loaded)
+    assert record["points"] == jac.QUICK_POINTS
+    assert record["learned_jacobian"]["seeds"] == jac.QUICK_SEEDS
+    assert list(record["along_runs"]["scenarios"]) == list(scn.PAPER_SCENARIOS)
+    assert record["figures"] == ["jacobians_errors.png", "jacobians_learned.png"]
+    for name in record["figures"]:
+        assert (out / "figures" / name).is_file()
+    assert (out / "tables" / "jacobians.md").read_text() == jac.table(loaded)
+    assert record["notes"] == jac.notes(loaded)
+    section = jac.render(loaded)
+    assert section.startswith(f"## {jac.TITLE}\n")
+    assert jac.table(loaded).rstrip() in section
+    assert "![jacobians_learned.png](figures/jacobians_learned.png)" in section
+
+
+def test_check_fails_on_a_broken_along_run(quick):
+    _, record = quick
+    along = json.loads(json.dumps(record["along_runs"]))
+    along["scenarios"]["sinusoid"]["error_dynamics_max_residual"]["corrected"] = 1e-6
+    with pytest.raises(AssertionError, match="sinusoid: corrected error-dynamics"):
+        jac.check({**record, "along_runs": along})
+
+
+@needs_paper
+def test_committed_record_checks_and_renders_the_committed_table_and_section():
+    record = common.load_record(PAPER, jac.STEM)
+    jac.check(record)
+    assert jac.table(record) == (PAPER / "tables" / "jacobians.md").read_text()
+    assert jac.notes(record) == record["notes"]
+    report = (PAPER / "report.md").read_text()
+    start = report.index(f"## {jac.TITLE}\n")
+    end = report.index("\n## ", start)
+    assert jac.render(record).rstrip("\n") == report[start:end].rstrip("\n")
