@@ -13,29 +13,20 @@ import dataclasses
 import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
+from test_performance import short_lemniscate, short_perturbed  # the benchmark's short runs
 
 from wmr import controllers, loop, nlsys
 from wmr import scenario as scn
 from wmr.controllers import backstepping
-from wmr.scenario import Disturbance, Estimator, Limits
+from wmr.scenario import Estimator
 from wmr.sim import simulate
 
 ct = pytest.importorskip("control")
 
-STEPS = 150
-
-
-def short_lemniscate():
-    return dataclasses.replace(scn.load(scn.builtin("lemniscate")), duration=STEPS * 0.01)
-
 
 def perturbed_saturated():
     """A disturbance window and tight limits inside the run, every controller on the pose EKF."""
-    sc = scn.load(scn.builtin("sinusoid-perturbed"))
-    return dataclasses.replace(sc, duration=STEPS * sc.dt,
-                               disturbances=(Disturbance(0.5, 1.2, (0.1, 0.3)),),
-                               limits=Limits(v_max=0.6, w_max=1.5),
-                               estimator=Estimator(pose_source="filtered"))  # fmt: skip
+    return dataclasses.replace(short_perturbed(), estimator=Estimator(pose_source="filtered"))
 
 
 SCENARIOS = {"lemniscate": short_lemniscate, "perturbed-saturated-filtered": perturbed_saturated}
@@ -93,8 +84,8 @@ def test_system_and_layout():
     assert lay.n_theta == n and lay.n_states == 15 + lay.n_s + n + n * n
     assert (sys.nstates, sys.ninputs, sys.noutputs) == (lay.n_states, 8, 3)
     assert sys.isdtime(strict=True) and sys.dt == sc.dt
-    assert sys.state_labels[:3] == ["q[0]", "q[1]", "q[2]"] and sys.state_labels[-1] == (
-        f"P[{n * n - 1}]")
+    assert sys.state_labels[:3] == ["q[0]", "q[1]", "q[2]"]
+    assert sys.state_labels[-1] == f"P[{n * n - 1}]"
     assert sys.input_labels == list(nlsys.INPUTS) and sys.output_labels == list(nlsys.OUTPUTS)
     parts = lay.split(cl.X0.copy())
     assert_array_equal(lay.pack(*parts), cl.X0)

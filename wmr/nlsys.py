@@ -139,15 +139,9 @@ def closed_loop(scenario: Scenario, controller: str, seed: int | None = None, *,
 
     Parameters
     ----------
-    scenario : Scenario
-        The validated scenario.
-    controller : str
-        A registered controller name (``wmr.controllers.NAMES``).
-    seed : int, optional
-        Seed of the run (default: the scenario's): the noise in ``U`` and the controller's
-        initial state in ``X0`` are those of ``wmr.sim.simulate`` with the same seed.
-    settings : optional
-        Controller settings overriding those of the scenario file.
+    scenario, controller, seed, settings
+        As for ``wmr.sim.simulate``: the noise in ``U`` and the controller's initial state in
+        ``X0`` are those of ``simulate`` with the same arguments.
     name : str, optional
         The system's name (default ``"<controller>-closed-loop"``).
 
