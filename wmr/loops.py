@@ -27,7 +27,8 @@ condition of the ``w`` loop (:func:`routh_w_loop_stable`); :func:`stability_regi
 :func:`stable_gain_interval` compute the same from eigenvalues for any operating point.
 
 All functions are analysis-time numpy / python-control / CasADi (the closed loop never calls
-them).  Margins of these loops: ``wmr.margins``.
+them); ``wmr.symbolic`` (CasADi) is imported when a plant or backstepping gain is built, so that
+importing this module does not load it.  Margins of these loops: ``wmr.margins``.
 """
 
 from __future__ import annotations
@@ -41,10 +42,10 @@ import numpy as np
 from scipy import optimize
 
 from wmr import scenario as scn
-from wmr import symbolic as sym
 from wmr._settings import check as _check
 from wmr.controllers import backstepping as bsc_mod
 from wmr.controllers import pid as pid_mod
+from wmr.kinematics import INTEGRATORS
 from wmr.references import sample
 
 __all__ = [
@@ -108,7 +109,7 @@ class OperatingPoint:
         _check(math.isfinite(self.v_r), "v_r", self.v_r, "must be finite")
         _check(math.isfinite(self.w_r), "w_r", self.w_r, "must be finite")
         _check(math.isfinite(self.dt) and self.dt > 0, "dt", self.dt, "must be > 0")
-        _check(self.integrator in sym.INTEGRATORS, "integrator", self.integrator, "unknown")
+        _check(self.integrator in INTEGRATORS, "integrator", self.integrator, "unknown")
 
     @property
     def u_r(self) -> np.ndarray:
@@ -221,6 +222,8 @@ def pid_controller(gains, dt: float) -> ct.StateSpace:
 def backstepping_controller(gains, op: OperatingPoint) -> ct.StateSpace:
     """Linearised backstepping: the static gain ``du/de`` (2, 3) at ``e = 0``, by CasADi AD of
     :func:`wmr.symbolic.backstepping_law_function`; ``gains`` is ``(k1, k2, k3)``."""
+    from wmr import symbolic as sym  # on use: see _kinematic_error_step
+
     law = sym.backstepping_law_function()
     jac = law.factory("backstepping_gain", ["e", "u_r", "k"], ["jac:u:e"])
     D = np.asarray(jac(np.zeros(3), op.u_r, np.asarray(gains, dtype=float)))
@@ -477,6 +480,10 @@ def stable_gain_interval(op: OperatingPoint, index: int, gains=PID_GAINS,
 def _kinematic_error_step(op: OperatingPoint) -> ct.StateSpace:
     """``de_{k+1} = E de_k + B du_k``, ``y_k = de_k``: the unicycle's error step (no input
     dynamics), by CasADi AD at ``e = 0``, ``u = u_r``."""
+    # CasADi is imported here, on use, so that importing wmr never loads it (the oracle stays
+    # out of the simulator's import graph: tests/test_symbolic.py).
+    from wmr import symbolic as sym
+
     E, B = sym.error_step_jacobian_function(op.integrator)(np.zeros(3), op.u_r, op.u_r, op.dt)
     return ct.ss(np.asarray(E), np.asarray(B), np.eye(3), np.zeros((3, 2)), op.dt,
                  inputs=("v", "w"), outputs=("e1", "e2", "e3"), name="plant")  # fmt: skip
