@@ -1,134 +1,52 @@
-"""Tests of analysis/margins.py: the linearisation, the loops, the margins and their cross-checks.
+"""Tests of wmr/margins.py (margins of the linearised loops) and of the study analysis/margins.py.
 
-Oracles: central differences of the **simulator's own** step (``wmr.kinematics.step`` and
-``tracking_error``, and the jitted PID law), margins of loops computed by hand, closed-form
-stability conditions (Jury), ``exp(A dt)`` for the sampled backstepping loop, and the
-nonlinear simulation.
+Oracles: margins of loops computed by hand (an integrator, a two-step delay, the PI on a double
+integrator), the same margins from closed-loop eigenvalues only, python-control's own disk
+margin, the mirror symmetry of the plane, the nonlinear simulation (decay rates, gain limits),
+and the committed record ``paper/results/margins.json`` for the study's check and report text.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
+from pathlib import Path
 
 import control as ct
 import numpy as np
 import pytest
-from numpy.testing import assert_allclose
-from oracles import central_fd as _central_fd
 
-from analysis import margins as M
-from wmr import kinematics as kin
+from analysis import margins as study
+from wmr import loops as lp
+from wmr import margins as mg
 from wmr import scenario as scn
-from wmr import symbolic as sym
 from wmr.controllers import pid
-from wmr.controllers.pid import S_INT, S_PREV, S_STARTED
+from wmr.sim import simulate
 
-SEED = 20240251
 DT = 0.01
-# Central differences, step 1e-6, of maps whose entries reach Kd/dt ~ 50: rounding
-# ~eps*50/1e-6 ~ 1e-8, truncation ~1e-12; 1e-6 is two decades above.
-FD_STEP = 1e-6
-FD_TOL = 1e-6
-# Two exact computations of the same matrix in a different order of operations.
-EXACT_TOL = 1e-12
 # Margins from the refined frequency response vs closed forms: limited by brentq/minimize
 # tolerances (~1e-10 relative) and by round-off in (zI - A)^-1 near z = 1.
 MARGIN_TOL = 1e-8
+# Frequency-domain vs eigenvalue margins: the eigenvalue scans bisect to ~1e-11..1e-13, the
+# disk-margin search over psi to xatol 1e-9; 1e-6 leaves room for both.
+EIGEN_TOL = 1e-6
+PAPER = Path(__file__).resolve().parents[1] / "paper"
 
-OPS = [M.OperatingPoint(0.61, 0.0, DT, label="straight"),
-       M.OperatingPoint(0.5, 0.5, DT, label="left turn"),
-       M.OperatingPoint(0.21, -0.5, DT, label="slow right turn")]  # fmt: skip
+OPS = [lp.OperatingPoint(0.61, 0.0, DT, label="straight"),
+       lp.OperatingPoint(0.5, 0.5, DT, label="left turn"),
+       lp.OperatingPoint(0.21, -0.5, DT, label="slow right turn")]  # fmt: skip
 OP_IDS = [op.label for op in OPS]
-
-
-def central_fd(fun, x, step=FD_STEP):
-    return _central_fd(fun, x, step)
-
-
-def _robot_pose(e, q_r):
-    """Robot pose whose corrected error (eq. 6) to the reference pose ``q_r`` is ``e``."""
-    th = q_r[2] - e[2]
-    c, s = math.cos(th), math.sin(th)
-    return np.array([q_r[0] - (c * e[0] - s * e[1]), q_r[1] - (s * e[0] + c * e[1]), th])
-
-
-def _simulator_error_step(e, u, ref, dt):
-    """e_{k+1} with the simulator's functions: move the pose and the reference one step."""
-    q = _robot_pose(e, ref[:3])
-    q_next = kin.step(q, np.asarray(u, dtype=float), dt, kin.EXACT)
-    q_r_next = kin.step(ref[:3].copy(), ref[3:5].copy(), dt, kin.EXACT)
-    return kin.tracking_error(q_next, q_r_next)
-
-
-@pytest.mark.parametrize("op", OPS, ids=OP_IDS)
-def test_plant_linearisation_equals_finite_differences_of_the_simulator_step(op):
-    """E, B of error_plant (CasADi AD) vs central differences of kinematics.step + tracking_error,
-    at reference poses anywhere in the plane (the corrected error is SE(2)-invariant)."""
-    rng = np.random.default_rng(SEED)
-    P = M.error_plant(op)
-    for _ in range(5):
-        ref = np.array([*rng.uniform(-5, 5, 2), rng.uniform(-math.pi, math.pi), op.v_r, op.w_r])
-        E = central_fd(lambda e, r=ref: _simulator_error_step(e, op.u_r, r, op.dt), np.zeros(3))
-        B = central_fd(lambda u, r=ref: _simulator_error_step(np.zeros(3), u, r, op.dt), op.u_r)
-        assert_allclose(P.A, E, atol=FD_TOL)
-        assert_allclose(P.B, B, atol=FD_TOL)
-    assert_allclose(P.C, np.eye(3))
-    assert P.dt == op.dt
-
-
-@pytest.mark.parametrize("op", OPS, ids=OP_IDS)
-def test_pid_closed_loop_equals_finite_differences_of_the_simulator_law_and_step(op):
-    """The python-control closed loop (plant + eq. 7 as an LTI system) vs central differences of
-    one step of the simulator's jitted PID law followed by kinematics.step, about x*."""
-    sc = scn.load(scn.builtin("sinusoid"))
-    K = (5.0, 5.0, 0.3, 10.0, 2.0, 0.2)  # non-zero Kd exercises the derivative states
-    settings = pid.FixedSettings(gains=K)
-    ref = np.array([1.0, -2.0, 0.7, op.v_r, op.w_r])
-
-    def step(x):
-        p, s, W, P = pid.pack(settings, sc, np.random.default_rng(0))
-        s[S_INT], s[S_INT + 1], s[S_PREV], s[S_PREV + 1] = x[3:7]
-        s[S_STARTED] = 1.0
-        q = _robot_pose(x[:3], ref[:3])
-        u = np.zeros(2)
-        pid.law(p, s, W, P, q, ref, op.dt, u)
-        e_next = kin.tracking_error(
-            kin.step(q, u, op.dt), kin.step(ref[:3].copy(), ref[3:5].copy(), op.dt)
-        )
-        return np.concatenate((e_next, s[S_INT : S_INT + 2], s[S_PREV : S_PREV + 2]))
-
-    xs = M.pid_equilibrium(op, K)
-    assert_allclose(step(xs), xs, atol=1e-14)  # the equilibrium of the literal eq. 7
-    A_fd = central_fd(step, xs)
-    loops = M.pid_loops(op, K)
-    assert_allclose(M.closed_loop_matrix(loops["v"]), A_fd, atol=FD_TOL)
-    assert_allclose(M.closed_loop_matrix(loops["w"]), A_fd, atol=FD_TOL)
-
-
-@pytest.mark.parametrize("op", OPS, ids=OP_IDS)
-def test_loops_close_to_casadis_jacobian_of_the_whole_closed_loop(op):
-    K = (5.0, 5.0, 0.3, 10.0, 2.0, 0.2)
-    A = np.asarray(
-        sym.pid_closed_loop_jacobian_function()(M.pid_equilibrium(op, K), op.u_r, K, op.dt)
-    )
-    loops = M.pid_loops(op, K)
-    for ch in M.CHANNELS:
-        assert_allclose(M.closed_loop_matrix(loops[ch]), A, atol=EXACT_TOL)
-    E, B = M.error_plant(op).A, M.error_plant(op).B
-    assert_allclose(M.pid_closed_loop_matrix(E, B, K, op.dt), A, atol=EXACT_TOL)
-    Ab = np.asarray(sym.backstepping_step_jacobian_function()(*op.u_r, *M.BSC_GAINS, op.dt))
-    assert_allclose(M.closed_loop_matrix(M.backstepping_loops(op)["w"]), Ab, atol=EXACT_TOL)
 
 
 # ---- margins of hand-computable loops ------------------------------------------------------
 
 
 def _check_against_eigen(L, m):
-    e = M.eigen_margins(L)
-    assert e["gain_margin"] == pytest.approx(m.gain_margin, rel=1e-6)
-    assert e["phase_margin_deg"] == pytest.approx(m.phase_margin_deg, rel=1e-6)
-    assert e["disk_margin"] == pytest.approx(m.disk_margin, rel=1e-6)
+    e = mg.eigen_margins(L)
+    assert e["gain_margin"] == pytest.approx(m.gain_margin, rel=EIGEN_TOL)
+    assert e["phase_margin_deg"] == pytest.approx(m.phase_margin_deg, rel=EIGEN_TOL)
+    assert e["disk_margin"] == pytest.approx(m.disk_margin, rel=EIGEN_TOL)
 
 
 @pytest.mark.parametrize("a", [0.05, 0.5, 1.2])
@@ -148,7 +66,7 @@ def test_margins_of_an_integrator_loop(a):
       margin is 2 atan(alpha/2) = 2 atan((2 - a)/(2 + a)).
     """
     L = ct.ss([[1.0]], [[1.0]], [[a]], [[0.0]], DT)
-    m = M.loop_margins(L)
+    m = mg.loop_margins(L)
     assert m.stable
     assert m.gain_margin == pytest.approx(2 / a, rel=MARGIN_TOL)
     assert m.phase_crossover_rad_s == pytest.approx(math.pi / DT, rel=1e-12)
@@ -159,6 +77,8 @@ def test_margins_of_an_integrator_loop(a):
     assert m.disk_gain_margin_db == pytest.approx(20 * math.log10(2 / a), rel=MARGIN_TOL)
     assert m.disk_phase_margin_deg == pytest.approx(
         math.degrees(2 * math.atan((2 - a) / (2 + a))), rel=MARGIN_TOL)  # fmt: skip
+    assert mg.disk_gain_phase_margins(alpha) == pytest.approx(
+        (m.disk_gain_margin_db, m.disk_phase_margin_deg), rel=MARGIN_TOL)  # fmt: skip
     _check_against_eigen(L, m)
 
 
@@ -170,7 +90,7 @@ def test_margins_of_a_two_step_delay():
     (6.02 dB) and disk PM = 2 atan(1/3) = 36.87 deg."""
     k = 0.5
     L = ct.ss([[0.0, 0.0], [1.0, 0.0]], [[1.0], [0.0]], [[0.0, k]], [[0.0]], DT)  # k z^-2
-    m = M.loop_margins(L)
+    m = mg.loop_margins(L)
     assert m.gain_margin == pytest.approx(1 / k, rel=MARGIN_TOL)
     assert m.phase_crossover_rad_s == pytest.approx(math.pi / (2 * DT), rel=1e-9)
     assert m.phase_margin_deg == math.inf
@@ -180,10 +100,10 @@ def test_margins_of_a_two_step_delay():
         math.degrees(2 * math.atan(1 / 3)), rel=MARGIN_TOL
     )
     assert m.to_json()["phase_margin_deg"] == "inf"
-    e = M.eigen_margins(L)
-    assert e["gain_margin"] == pytest.approx(1 / k, rel=1e-6)
+    e = mg.eigen_margins(L)
+    assert e["gain_margin"] == pytest.approx(1 / k, rel=EIGEN_TOL)
     assert e["phase_margin_deg"] == math.inf
-    assert e["disk_margin"] == pytest.approx(m.disk_margin, rel=1e-6)
+    assert e["disk_margin"] == pytest.approx(m.disk_margin, rel=EIGEN_TOL)
 
 
 @pytest.mark.parametrize(("Kp", "Ki"), [(5.0, 5.0), (50.0, 1.0), (1.0, 200.0)])
@@ -197,14 +117,13 @@ def test_gain_margin_of_the_pi_double_integrator(Kp, Ki):
     a = DT * (Kp + Ki * DT)
     b = Kp / (Kp + Ki * DT)
     L = ct.ss([[2.0, -1.0], [1.0, 0.0]], [[1.0], [0.0]], [[a, -a * b]], [[0.0]], DT)
-    m = M.loop_margins(L)
+    m = mg.loop_margins(L)
     assert m.gain_margin == pytest.approx(4 / (a * (1 + b)), rel=MARGIN_TOL)
     assert m.gain_margin_lower == 0.0
     _check_against_eigen(L, m)
     # The same loop from the library: the v loop of the PID on a straight line.
-    op = M.OperatingPoint(0.61, 0.0, DT)
-    Lv = M.pid_loops(op, (Kp, Ki, 0.0, 10.0, 2.0, 0.0))["v"]
-    assert M.loop_margins(Lv, python_control=False).gain_margin == pytest.approx(
+    Lv = lp.pid_loops(OPS[0], (Kp, Ki, 0.0, 10.0, 2.0, 0.0))["v"]
+    assert mg.loop_margins(Lv, python_control=False).gain_margin == pytest.approx(
         m.gain_margin, rel=1e-9
     )
 
@@ -212,18 +131,19 @@ def test_gain_margin_of_the_pi_double_integrator(Kp, Ki):
 @pytest.mark.parametrize("op", OPS, ids=OP_IDS)
 @pytest.mark.parametrize("which", ["pid", "backstepping"])
 def test_frequency_margins_agree_with_closed_loop_eigenvalues(op, which):
-    loops = M.pid_loops(op) if which == "pid" else M.backstepping_loops(op)
-    for ch in M.CHANNELS:
-        m = M.loop_margins(loops[ch])
-        e = M.eigen_margins(loops[ch])
-        checks = M._channel_checks(m, e)
-        assert checks["gain_margin_rel_diff"] < 1e-6, checks
-        assert checks["gain_margin_lower_rel_diff"] < 1e-6, checks
-        assert checks["phase_margin_abs_diff_deg"] < 1e-6, checks
-        assert checks["disk_margin_rel_diff"] < 1e-6, checks
+    loops = lp.pid_loops(op) if which == "pid" else lp.backstepping_loops(op)
+    res = mg.analyse_loops(loops)
+    assert res["same_closed_loop"] < 1e-12
+    for ch in lp.CHANNELS:
+        m = res[ch]
+        checks = mg.compare_margins(m, res[f"{ch}_eigen"])
+        assert checks["gain_margin_rel_diff"] < EIGEN_TOL, checks
+        assert checks["gain_margin_lower_rel_diff"] < EIGEN_TOL, checks
+        assert checks["phase_margin_abs_diff_deg"] < EIGEN_TOL, checks
+        assert checks["disk_margin_rel_diff"] < EIGEN_TOL, checks
         assert checks["disk_gm_below_classical"] and checks["disk_pm_below_classical"]
         # python-control's own disk margin and the formula used along runs agree.
-        fast = M.loop_margins(loops[ch], python_control=False)
+        fast = mg.loop_margins(loops[ch], python_control=False)
         assert fast.disk_margin == pytest.approx(m.disk_margin, rel=1e-9)
         assert fast.disk_phase_margin_deg == pytest.approx(m.disk_phase_margin_deg, rel=1e-9)
 
@@ -232,10 +152,10 @@ def test_margins_are_mirror_symmetric_in_w_r():
     """Reflecting the plane (y -> -y) maps (v_r, w_r) to (v_r, -w_r), e2, e3, w to their negatives
     and s = e3 + e2 to -s: same loops, same margins."""
     op = OPS[1]
-    for ch in M.CHANNELS:
-        a = M.loop_margins(M.pid_loops(op)[ch], python_control=False)
-        b = M.loop_margins(
-            M.pid_loops(dataclasses.replace(op, w_r=-op.w_r))[ch], python_control=False
+    for ch in lp.CHANNELS:
+        a = mg.loop_margins(lp.pid_loops(op)[ch], python_control=False)
+        b = mg.loop_margins(
+            lp.pid_loops(dataclasses.replace(op, w_r=-op.w_r))[ch], python_control=False
         )
         assert a.phase_margin_deg == pytest.approx(b.phase_margin_deg, rel=1e-9)
         assert a.disk_margin == pytest.approx(b.disk_margin, rel=1e-9)
@@ -243,88 +163,107 @@ def test_margins_are_mirror_symmetric_in_w_r():
 
 def test_an_unstable_loop_gets_zero_margins():
     L = ct.ss([[1.0]], [[1.0]], [[2.5]], [[0.0]], DT)  # closed-loop pole 1 - 2.5 = -1.5
-    m = M.loop_margins(L)
+    m = mg.loop_margins(L)
     assert not m.stable and m.disk_margin == 0.0 and m.gain_margin_db == 0.0
 
 
-@pytest.mark.parametrize("dt", [0.02, 0.01])
-def test_backstepping_discrete_eigenvalues_approach_exp_of_continuous(dt):
-    """A_d = I + A dt + O(dt^2) (the ZOH step and the sampled law agree to first order), so
-    eig(A_d) - exp(eig(A) dt) = O(dt^2): halving dt divides the difference by ~4."""
-    for op in OPS:
-        A = np.asarray(sym.backstepping_jacobian_function()(*op.u_r, *M.BSC_GAINS))
-        lam = np.linalg.eigvals(A)
-        diffs = []
-        for h in (dt, dt / 2):
-            L = M.backstepping_loops(dataclasses.replace(op, dt=h))["v"]
-            diffs.append(M._match(np.linalg.eigvals(M.closed_loop_matrix(L)), np.exp(lam * h)))
-        assert diffs[0] < 5 * dt**2, diffs
-        assert 3.5 < diffs[0] / diffs[1] < 4.5, diffs
+def test_json_numbers():
+    assert mg.json_number(math.inf) == "inf" and mg.json_number(-math.inf) == "-inf"
+    assert mg.json_number(math.nan) is None
+    assert mg.json_number(np.float64(1.5)) == 1.5
 
 
-def test_stability_region_matches_jury_on_a_straight_line():
+def test_margins_along_a_fixed_pid_run_on_a_straight_line_are_those_of_the_operating_point():
+    """Along a fixed-PID run on a straight line the gains and (v_r, w_r) never change: every
+    frozen-time loop is the one at the operating point, read through RunResult.gains()."""
     op = OPS[0]
-    reg = M.stability_region(op, "v", n=25, log_range=(-1.0, 3.5))
-    P, I = np.meshgrid(reg["kp"], reg["ki"])
-    away = np.abs(reg["rho"] - 1.0) > 1e-6
-    assert np.array_equal((reg["rho"] < 1.0)[away], M.jury_v_loop_stable(P, I, op.dt)[away])
-    assert not np.all(reg["rho"] < 1.0) and np.any(reg["rho"] < 1.0)  # both sides are sampled
+    sc = lp.constant_reference_scenario(op, 2.0, np.zeros(3))
+    rec = mg.margins_along_run(simulate(sc, "pid", seed=0), every=40)
+    assert rec["t"].tolist() == pytest.approx([0.0, 0.4, 0.8, 1.2, 1.6])
+    assert np.all(rec["gains"] == np.array(lp.PID_GAINS))
+    ref = mg.analyse_loops(lp.pid_loops(op), python_control=False, cross_check=False)
+    assert np.all(rec["rho"] == ref["spectral_radius"])
+    for ch in lp.CHANNELS:
+        assert np.all(rec[f"{ch}_gm_db"] == ref[ch].gain_margin_db)
+        assert np.all(rec[f"{ch}_pm_deg"] == ref[ch].phase_margin_deg)
+        assert np.all(rec[f"{ch}_dm"] == ref[ch].disk_margin)
 
 
-def test_slow_mode_error_cancels_the_next_mode():
-    op = OPS[1]
-    A = M.closed_loop_matrix(M.backstepping_loops(op)["v"])
-    e0 = M.slow_mode_error(A, np.eye(3))
-    z, V = np.linalg.eig(A)
-    c = np.abs(np.linalg.solve(V, e0))
-    order = np.argsort(-np.abs(z))
-    assert np.linalg.norm(e0) == pytest.approx(1e-3)
-    assert c[order[-1]] < 1e-15 * np.max(c) + 1e-18  # the third (fastest) mode is not excited
+# ---- the study: simulator cross-checks, record, check, report text -------------------------
 
 
 def test_decay_of_the_simulated_loop_follows_the_slowest_eigenvalue():
     """The nonlinear simulated loop from a small error follows its linearisation and decays at
     the rate of the slowest closed-loop eigenvalue."""
-    d = M.decay_check("backstepping", OPS[1], M.BSC_GAINS, decades=4.0)
+    d = study.decay_check("backstepping", OPS[1], lp.BSC_GAINS, decades=4.0)
     assert not d["diverged"]
     assert d["rate_rel_error"] < 1e-3, d
     assert d["max_deviation_from_linear_rel"] < 1e-2, d
 
 
-def test_json_numbers():
-    assert M._num(math.inf) == "inf" and M._num(-math.inf) == "-inf" and M._num(math.nan) is None
-    assert M._num(np.float64(1.5)) == 1.5
-
-
-def test_operating_point_validation():
-    with pytest.raises(ValueError, match="dt"):
-        M.OperatingPoint(0.5, 0.0, 0.0)
-    with pytest.raises(ValueError, match="where"):
-        M.operating_point(scn.load(scn.builtin("sinusoid")), "median")
-
-
-def test_gain_limits_equal_jurys_closed_forms_on_a_straight_line():
-    """w_r = 0, Kdv = 0: Jury's conditions (jury_v_loop_stable) bound Kpv by
-    min(2/dt, (4 - dt^2 Kiv)/(2 dt)) and Kiv by (4 - 2 dt Kpv)/dt^2."""
-    op = OPS[0]
-    Kpv, Kiv = M.PID_GAINS[:2]
-    assert M.stable_gain_interval(op, 0)[1] == pytest.approx(
-        min(2 / DT, (4 - DT * DT * Kiv) / (2 * DT)), rel=1e-10
-    )
-    assert M.stable_gain_interval(op, 1)[1] == pytest.approx((4 - 2 * DT * Kpv) / DT**2, rel=1e-10)
-    lo, hi = M.stable_gain_interval(op, 3)
-    # The continuous-time Routh bound Kpw^2 v_r + Kpw Kiw - Kiw v_r > 0, to O(dt).
-    Kiw = M.PID_GAINS[4]
-    routh = (-Kiw + math.sqrt(Kiw**2 + 4 * op.v_r**2 * Kiw)) / (2 * op.v_r)
-    assert lo == pytest.approx(routh, rel=0.05)
-    assert 1.9 / DT < hi < 2 / DT
-
-
 @pytest.mark.parametrize("index", [2, 5], ids=["Kdv", "Kdw"])
 def test_simulated_loop_crosses_the_derivative_gain_limit_where_the_eigenvalues_do(index):
     op = OPS[0]
-    limit = M.stable_gain_interval(op, index)[1]
-    inside, outside = M.gain_limit_check(op, index, limit, steps=1500)
+    limit = lp.stable_gain_interval(op, index)[1]
+    inside, outside = study.gain_limit_check(op, index, limit, steps=1500)
     assert inside["spectral_radius"] < 1 < outside["spectral_radius"]
     assert inside["diverged_at"] is None and inside["tail_over_initial"] < 1
     assert outside["diverged_at"] is not None or outside["peak_over_initial"] > 10
+
+
+def test_printed_rotation_destabilises_both_loops_between_45_and_135_degrees():
+    """With the printed matrix the lateral feedback is cos 2theta e2: it changes sign for
+    45 < |theta| < 135 deg; at theta = 0 the printed loop is the corrected one."""
+    sweep = study.printed_rotation_sweep(OPS[0], np.array([0.0, 30.0, 90.0, -90.0, 180.0]))
+    for name in ("pid", "bsc"):
+        rho = sweep[f"{name}_rho"]
+        assert rho[0] == pytest.approx(sweep[f"{name}_rho_corrected"], rel=1e-12)
+        assert rho[1] < 1.0 and rho[4] < 1.0
+        assert rho[2] > 1.0 and rho[3] > 1.0
+    assert study.unstable_intervals([0, 1, 2, 3, 4], [False, True, True, False, True]) == [
+        [1.0, 2.0], [4.0, 4.0]]  # fmt: skip
+    with pytest.raises(ValueError, match="straight line"):
+        study.printed_rotation_sweep(OPS[1], [0.0])
+
+
+@pytest.mark.slow
+def test_quick_run_writes_its_files_and_passes_its_check(tmp_path):
+    record = study.run(tmp_path, quick=True)
+    study.check(record)
+    stored = json.loads((tmp_path / "results" / "margins.json").read_text())
+    study.check(stored)
+    assert stored["notes"] == study.notes(stored)
+    assert (tmp_path / "tables" / "margins.md").read_text() == study.table(stored)
+    for name in stored["figures"]:
+        assert name.startswith("margins_") and (tmp_path / "figures" / name).exists()
+    assert stored["along_runs"]["every_steps"] == study.QUICK_EVERY
+
+
+def test_committed_record_passes_the_check_and_renders_the_committed_report_text():
+    """The committed record: its claims hold, its notes and table are what the study renders
+    from it, and the report's section is :func:`render` of it."""
+    record = json.loads((PAPER / "results" / "margins.json").read_text())
+    study.check(record)
+    assert record["notes"] == study.notes(record)
+    assert (PAPER / "tables" / "margins.md").read_text() == study.table(record)
+    report = (PAPER / "report.md").read_text()
+    assert study.render(record) in report
+    # The SGD clamp of the derivative gains lies below the limits the loop tolerates.
+    iv = record["stability_region"]["stable_interval_one_gain_at_a_time"]
+    clamp = pid.Settings().gain_max
+    assert clamp[2] < iv["Kdv"][1] and clamp[5] < iv["Kdw"][1]
+
+
+def test_check_rejects_a_failed_cross_check():
+    record = json.loads((PAPER / "results" / "margins.json").read_text())
+    record["cross_checks"]["region_v_agrees_with_jury"] = 0.99
+    with pytest.raises(AssertionError):
+        study.check(record)
+
+
+def test_operating_points_of_the_paper_scenarios():
+    sc = scn.load(scn.builtin("sinusoid"))
+    op = lp.operating_point(sc, "mean")
+    assert op.w_r == 0.0 and op.label == "sinusoid:mean" and op.dt == sc.dt
+    curved = lp.operating_point(sc, "max-curvature")
+    assert abs(curved.w_r) > 0.4 and curved.label == "sinusoid:max-curvature"

@@ -1,0 +1,495 @@
+"""Linearised sampled-data loops of the fixed PID (eq. 7) and backstepping (python-control).
+
+Linearisation.  About perfect tracking of a reference with constant ``(v_r, w_r)`` (an
+:class:`OperatingPoint`) the error dynamics of one sample period are ``de_{k+1} = E de_k + B du_k``
+with ``E = de_next/de`` (3, 3) and ``B = de_next/du`` (3, 2) from CasADi's AD of the exact ZOH step
+(:func:`wmr.symbolic.error_step_jacobian_function` at ``e = 0``, ``u = u_r``; never finite
+differences).  :func:`error_plant` is the one place that builds the plant of every loop here.
+
+Controllers.  The PID of eq. (7), discretised as in ``wmr.controllers.pid`` (``I[x]_k =
+I[x]_{k-1} + dt x_k``, ``D[x]_k = (x_k - x_{k-1})/dt``, ``e1`` drives ``v``, ``s = e3 + e2``
+drives ``w``), is linear: a discrete LTI system from ``e`` to ``u`` with states ``(I[e1], I[s],
+e1_prev, s_prev)`` (:func:`pid_controller`).  Without feed-forward (the literal eq. 7) the nominal
+input ``u_r`` is carried by the integrals, ``I* = (v_r/Kiv, w_r/Kiw)`` (:func:`pid_equilibrium`);
+the deviations from that equilibrium obey the same LTI model (and with feed-forward too:
+``d(v_r cos e3)/de3 = 0`` at ``e3 = 0``).  Backstepping linearises to the static gain
+``du = [[k1, 0, 0], [0, v_r k2, v_r k3]] de`` (:func:`backstepping_controller`, CasADi AD).
+
+Loops.  Plant and controller are joined with ``control.interconnect`` and analysed **one loop at
+a time**: broken at the plant input ``v`` with the ``w`` loop closed (``L_v``), and at ``w`` with
+``v`` closed (``L_w``), in the negative-feedback convention (closed loop ``1 + L``):
+:func:`loop_transfer`.  Every closed-loop state vector is the plant's states, then the
+controller's.
+
+Closed forms (straight line, ``w_r = 0``, PI part): Jury's conditions for the ``v`` loop
+(:func:`jury_v_loop_stable`, :func:`jury_v_gain_limits`) and the continuous-time Routh-Hurwitz
+condition of the ``w`` loop (:func:`routh_w_loop_stable`); :func:`stability_region` and
+:func:`stable_gain_interval` compute the same from eigenvalues for any operating point.
+
+All functions are analysis-time numpy / python-control / CasADi (the closed loop never calls
+them); ``wmr.symbolic`` (CasADi) is imported when a plant or backstepping gain is built, so that
+importing this module does not load it.  Margins of these loops: ``wmr.margins``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import control as ct
+import numpy as np
+from scipy import optimize
+
+from wmr import scenario as scn
+from wmr._settings import check as _check
+from wmr.controllers import backstepping as bsc_mod
+from wmr.controllers import pid as pid_mod
+from wmr.kinematics import INTEGRATORS
+from wmr.references import sample
+
+__all__ = [
+    "CHANNELS",
+    "PID_GAINS",
+    "BSC_GAINS",
+    "OperatingPoint",
+    "operating_point",
+    "constant_reference_scenario",
+    "error_plant",
+    "pid_controller",
+    "backstepping_controller",
+    "loop_transfer",
+    "pid_loops",
+    "backstepping_loops",
+    "closed_loop_matrix",
+    "spectral_radius",
+    "frequency_response",
+    "eigenvalue_distance",
+    "pid_equilibrium",
+    "pid_closed_loop_matrix",
+    "start_state_map",
+    "slow_mode_error",
+    "jury_v_loop_stable",
+    "jury_v_gain_limits",
+    "routh_w_loop_stable",
+    "first_crossing",
+    "stability_region",
+    "stable_gain_interval",
+]
+
+#: The two loops (plant inputs) of the unicycle: linear velocity ``v``, angular velocity ``w``.
+CHANNELS = ("v", "w")
+#: Default gains of the fixed PID (Kpv, Kiv, Kdv, Kpw, Kiw, Kdw) and of backstepping (k1, k2, k3).
+PID_GAINS: tuple[float, ...] = pid_mod.Settings().gains
+BSC_GAINS: tuple[float, ...] = bsc_mod.Settings().gains
+
+
+# ---------------------------------------------------------------------------------------------
+# Operating point
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class OperatingPoint:
+    """Perfect tracking of a reference with constant ``v_r`` [m/s] and ``w_r`` [rad/s].
+
+    A straight line (``w_r = 0``) or a circle; ``dt`` [s] and the robot's ``integrator`` as in a
+    scenario.  ``label`` says where it comes from.  (What the plant of :func:`error_plant` adds
+    to the kinematic step, such as actuator lag or an input delay, belongs here as further
+    fields.)
+    """
+
+    v_r: float
+    w_r: float
+    dt: float
+    integrator: str = "exact"
+    label: str = ""
+
+    def __post_init__(self):
+        _check(math.isfinite(self.v_r), "v_r", self.v_r, "must be finite")
+        _check(math.isfinite(self.w_r), "w_r", self.w_r, "must be finite")
+        _check(math.isfinite(self.dt) and self.dt > 0, "dt", self.dt, "must be > 0")
+        _check(self.integrator in INTEGRATORS, "integrator", self.integrator, "unknown")
+
+    @property
+    def u_r(self) -> np.ndarray:
+        """The nominal input ``(v_r, w_r)``, shape (2,)."""
+        return np.array([self.v_r, self.w_r])
+
+    def to_json(self) -> dict:
+        """``{"label", "v_r", "w_r", "dt", "integrator"}``."""
+        return {"label": self.label, "v_r": self.v_r, "w_r": self.w_r, "dt": self.dt,
+                "integrator": self.integrator}  # fmt: skip
+
+
+def operating_point(sc: scn.Scenario, where: str = "mean") -> OperatingPoint:
+    """An operating point of scenario ``sc``.
+
+    ``where="mean"``: the time-mean ``v_r`` of the reference with ``w_r = 0`` (the straight line;
+    the sinusoid's and lemniscate's mean curvature is zero).  ``where="max-curvature"``: the
+    ``(v_r, w_r)`` of the reference sample with the largest ``|w_r|``.  Labelled
+    ``"<scenario>:<where>"``.
+    """
+    ref = sample(sc.reference.kind, sc.reference.params, sc.dt, sc.n_steps + 1)
+    if where == "mean":
+        v_r, w_r = float(np.mean(ref[:, 3])), 0.0
+    elif where == "max-curvature":
+        i = int(np.argmax(np.abs(ref[:, 4])))
+        v_r, w_r = float(ref[i, 3]), float(ref[i, 4])
+    else:
+        raise ValueError(f"where must be 'mean' or 'max-curvature', got {where!r}")
+    return OperatingPoint(v_r, w_r, sc.dt, sc.integrator, f"{sc.name}:{where}")
+
+
+def constant_reference_scenario(op: OperatingPoint, duration: float, e0) -> scn.Scenario:
+    """A noise-free scenario whose reference has constant ``(v_r, |w_r|)``, started at error ``e0``.
+
+    A straight line (sinusoid of zero amplitude) if ``w_r = 0``, else a counter-clockwise circle of
+    radius ``v_r/|w_r|`` (the loop at ``-w_r`` is its mirror image, with the same eigenvalues).
+    The initial pose is the one whose corrected error (eq. 6) to the first reference pose is
+    ``e0`` (3,); ``duration`` [s] is rounded to whole steps.  For comparing the simulator
+    (``wmr.sim.simulate``) with the linearised loop.
+    """
+    if op.w_r == 0.0:
+        ref = {"kind": "sinusoid", "speed": op.v_r, "amplitude": 0.0, "omega": 1.0}
+    else:
+        R = op.v_r / abs(op.w_r)
+        ref = {"kind": "circle", "radius": R, "period": 2 * math.pi / abs(op.w_r)}
+    r0 = sample(ref["kind"], {k: v for k, v in ref.items() if k != "kind"}, op.dt, 1)[0]
+    e0 = np.asarray(e0, dtype=float)
+    th = r0[2] - e0[2]
+    c, s = math.cos(th), math.sin(th)
+    q0 = [r0[0] - (c * e0[0] - s * e0[1]), r0[1] - (s * e0[0] + c * e0[1]), th]
+    n = round(duration / op.dt)
+    return scn.from_dict({"name": f"constant-{op.label or 'op'}", "duration": n * op.dt,
+                          "dt": op.dt, "initial_pose": q0, "integrator": op.integrator,
+                          "reference": ref, "noise": {"pose_std": [0.0, 0.0, 0.0]}})  # fmt: skip
+
+
+# ---------------------------------------------------------------------------------------------
+# Plant, controllers, loops
+# ---------------------------------------------------------------------------------------------
+
+
+def error_plant(op: OperatingPoint) -> ct.StateSpace:
+    """The plant of the linearised loop at ``op``: inputs ``(v, w)``, outputs ``(e1, e2, e3)``.
+
+    Today the kinematic error step alone: ``de_{k+1} = E de_k + B du_k``, ``y_k = de_k`` (states
+    ``e``, ``C = I``), with ``E`` (3, 3) and ``B`` (3, 2) by CasADi AD of
+    :func:`wmr.symbolic.error_step_function` at ``e = 0``, ``u = u_r`` (exact, no finite
+    differences).
+
+    This is the one place where the plant is built: every loop, closed-loop matrix and gain grid
+    of this module takes it from here, and handles any number of plant states through the output
+    map ``C`` (the error is ``C x``; states are ordered error first).  Input dynamics between the
+    commanded and the applied input (DESIGN §3.3: a first-order actuator lag per channel, a delay
+    line of whole samples) enter as discrete blocks in series before the kinematic step: the
+    plant's states become ``(e, block states)``, its inputs and outputs stay ``(v, w)`` and
+    ``(e1, e2, e3)``.
+    """
+    return _kinematic_error_step(op)
+
+
+def pid_controller(gains, dt: float) -> ct.StateSpace:
+    """Eq. (7) as a discrete LTI system from ``e = (e1, e2, e3)`` to ``u = (v, w)``.
+
+    States ``x_k = (I[e1]_{k-1}, I[s]_{k-1}, e1_{k-1}, s_{k-1})`` with ``s = e3 + e2``; with
+    ``I_k = I_{k-1} + dt x_k`` and ``D_k = (x_k - x_{k-1})/dt`` (``wmr.controllers.pid``)::
+
+        v_k = Kiv I[e1]_{k-1} - (Kdv/dt) e1_{k-1} + (Kpv + Kiv dt + Kdv/dt) e1_k
+        w_k = Kiw I[s]_{k-1}  - (Kdw/dt) s_{k-1}  + (Kpw + Kiw dt + Kdw/dt) s_k
+
+    and ``x_{k+1} = diag(1, 1, 0, 0) x_k + [[dt e1], [dt s], [e1], [s]]``.  ``gains`` is
+    ``(Kpv, Kiv, Kdv, Kpw, Kiw, Kdw)``, ``dt`` [s].
+    """
+    Kpv, Kiv, Kdv, Kpw, Kiw, Kdw = (float(g) for g in gains)
+    A = np.diag([1.0, 1.0, 0.0, 0.0])
+    # fmt: off
+    B = np.array([[dt, 0.0, 0.0],
+                  [0.0, dt, dt],
+                  [1.0, 0.0, 0.0],
+                  [0.0, 1.0, 1.0]])
+    C = np.array([[Kiv, 0.0, -Kdv / dt, 0.0],
+                  [0.0, Kiw, 0.0, -Kdw / dt]])
+    gv, gw = Kpv + Kiv * dt + Kdv / dt, Kpw + Kiw * dt + Kdw / dt
+    D = np.array([[gv, 0.0, 0.0],
+                  [0.0, gw, gw]])
+    # fmt: on
+    return ct.ss(A, B, C, D, dt, inputs=("e1", "e2", "e3"), outputs=("v", "w"),
+                 states=("I_e1", "I_s", "e1_prev", "s_prev"), name="controller")  # fmt: skip
+
+
+def backstepping_controller(gains, op: OperatingPoint) -> ct.StateSpace:
+    """Linearised backstepping: the static gain ``du/de`` (2, 3) at ``e = 0``, by CasADi AD of
+    :func:`wmr.symbolic.backstepping_law_function`; ``gains`` is ``(k1, k2, k3)``."""
+    from wmr import symbolic as sym  # on use: see _kinematic_error_step
+
+    law = sym.backstepping_law_function()
+    jac = law.factory("backstepping_gain", ["e", "u_r", "k"], ["jac:u:e"])
+    D = np.asarray(jac(np.zeros(3), op.u_r, np.asarray(gains, dtype=float)))
+    return ct.ss(np.zeros((0, 0)), np.zeros((0, 3)), np.zeros((2, 0)), D, op.dt,
+                 inputs=("e1", "e2", "e3"), outputs=("v", "w"), name="controller")  # fmt: skip
+
+
+def loop_transfer(plant: ct.StateSpace, controller: ct.StateSpace, channel: str) -> ct.StateSpace:
+    """The SISO loop broken at plant input ``channel`` (``"v"`` or ``"w"``), the other closed.
+
+    The controller's output ``channel`` in response to the plant input ``channel`` is ``-L``:
+    ``L`` is in the negative-feedback convention (closed loop ``1 + L``).  States: the plant's,
+    then the controller's.
+    """
+    if channel not in CHANNELS:
+        raise ValueError(f"channel must be 'v' or 'w', got {channel!r}")
+    other = "w" if channel == "v" else "v"
+    connections = [[f"controller.{e}", f"plant.{e}"] for e in ("e1", "e2", "e3")]
+    connections.append([f"plant.{other}", f"controller.{other}"])
+    T = ct.interconnect([plant, controller], connections=connections,
+                        inplist=[f"plant.{channel}"], outlist=[f"controller.{channel}"],
+                        name=f"T_{channel}")  # fmt: skip
+    return ct.ss(T.A, T.B, -T.C, -T.D, T.dt, name=f"L_{channel}")
+
+
+def pid_loops(op: OperatingPoint, gains=PID_GAINS) -> dict[str, ct.StateSpace]:
+    """``{"v": L_v, "w": L_w}`` of the PID loop at ``op`` (plant states + 4 each)."""
+    P, C = error_plant(op), pid_controller(gains, op.dt)
+    return {ch: loop_transfer(P, C, ch) for ch in CHANNELS}
+
+
+def backstepping_loops(op: OperatingPoint, gains=BSC_GAINS) -> dict[str, ct.StateSpace]:
+    """``{"v": L_v, "w": L_w}`` of the backstepping loop at ``op`` (the plant's states each)."""
+    P, C = error_plant(op), backstepping_controller(gains, op)
+    return {ch: loop_transfer(P, C, ch) for ch in CHANNELS}
+
+
+# ---------------------------------------------------------------------------------------------
+# Closed loops, spectra, frequency response
+# ---------------------------------------------------------------------------------------------
+
+
+def closed_loop_matrix(L: ct.StateSpace, f: complex = 1.0) -> np.ndarray:
+    """State matrix of ``L`` closed through ``f`` (``u = -f y``): ``A - f B (1 + f D)^-1 C``.
+
+    ``f = 1`` gives the nominal closed loop (every loop of :func:`pid_loops` has the same one).
+    """
+    d = complex(L.D[0, 0]) if np.iscomplexobj(f) else float(L.D[0, 0])
+    return L.A - (f / (1.0 + f * d)) * (L.B @ L.C)
+
+
+def spectral_radius(A: np.ndarray) -> float:
+    """``max |eig(A)|`` (0 for an empty matrix): the loop is stable iff it is < 1."""
+    return float(np.max(np.abs(np.linalg.eigvals(A)))) if A.size else 0.0
+
+
+def frequency_response(L: ct.StateSpace, omega) -> np.ndarray:
+    """``L(exp(j omega dt))`` of a SISO discrete ``L`` at ``omega`` [rad/s], vectorised.
+
+    Solved on the state space, ``C (zI - A)^-1 B + D``, not through a transfer function (whose
+    polynomial coefficients lose the poles clustered at ``z = 1``).
+    """
+    omega = np.atleast_1d(np.asarray(omega, dtype=float))
+    n = L.A.shape[0]
+    z = np.exp(1j * omega * L.dt)
+    if n == 0:
+        return np.full(z.shape, complex(L.D[0, 0]))
+    M = z[:, None, None] * np.eye(n) - L.A
+    X = np.linalg.solve(M, np.broadcast_to(L.B.astype(complex), (z.size, n, 1)))
+    return (L.C @ X)[:, 0, 0] + L.D[0, 0]
+
+
+def eigenvalue_distance(a, b) -> float:
+    """Largest distance between two eigenvalue sets of equal size after optimal pairing."""
+    a, b = np.asarray(a, dtype=complex), np.asarray(b, dtype=complex)
+    cost = np.abs(a[:, None] - b[None, :])
+    r, c = optimize.linear_sum_assignment(cost)
+    return float(cost[r, c].max())
+
+
+# ---------------------------------------------------------------------------------------------
+# The PID loop without python-control (gain grids), equilibrium, initial states
+# ---------------------------------------------------------------------------------------------
+
+
+def pid_equilibrium(op: OperatingPoint, gains, feed_forward: bool = False) -> np.ndarray:
+    """Equilibrium ``x*`` (7,) of :func:`wmr.symbolic.pid_closed_loop_step_function`.
+
+    ``(0, 0, 0, v_r/Kiv, w_r/Kiw, 0, 0)`` without feed-forward (the integrals carry ``u_r``;
+    ``Kiv, Kiw > 0`` needed unless ``u_r`` is 0), zero with it.
+    """
+    x = np.zeros(7)
+    if not feed_forward:
+        x[3] = op.v_r / gains[1] if op.v_r else 0.0
+        x[4] = op.w_r / gains[4] if op.w_r else 0.0
+    return x
+
+
+def pid_closed_loop_matrix(plant: ct.StateSpace, gains) -> np.ndarray:
+    """The closed loop of :func:`pid_controller` on ``plant`` (:func:`error_plant`).
+
+    ``[[A + B D_c C, B C_c], [B_c C, A_c]]`` with the plant's ``(A, B, C)`` and the controller's
+    ``(A_c, B_c, C_c, D_c)`` at ``plant.dt``: states the plant's, then the controller's.  The
+    same matrix as ``closed_loop_matrix(pid_loops(op, gains)["v"])`` without interconnecting
+    (for gain grids).
+    """
+    c = pid_controller(gains, plant.dt)
+    top = np.hstack((plant.A + plant.B @ c.D @ plant.C, plant.B @ c.C))
+    return np.vstack((top, np.hstack((c.B @ plant.C, c.A))))
+
+
+def start_state_map(controller: str, plant: ct.StateSpace) -> np.ndarray:
+    """``M`` (n, 3): the closed-loop state at which the simulator starts from an error ``e0``.
+
+    The plant's states are ``(e0, 0)`` (its extra states, if any, at rest at the operating
+    point); the PID (``controller="pid"``) starts with zero integral deviations and previous
+    signals equal to the current ones (``D = 0`` at ``k = 0``: ``e1_prev = e1``, ``s_prev = e2 +
+    e3``); backstepping has no state.  ``x0 = M e0``.
+    """
+    top = np.vstack((np.eye(3), np.zeros((plant.nstates - 3, 3))))
+    if controller == "backstepping":
+        return top
+    if controller == "pid":
+        return np.vstack((top, np.zeros((2, 3)), [[1.0, 0.0, 0.0], [0.0, 1.0, 1.0]]))
+    raise ValueError(f"controller must be 'pid' or 'backstepping', got {controller!r}")
+
+
+def slow_mode_error(A: np.ndarray, M: np.ndarray, size: float = 1e-3) -> np.ndarray:
+    """An initial error ``e0`` (3,) that excites the slowest mode of ``x+ = A x`` and not the next.
+
+    ``x0 = M e0`` (``M`` (n, 3) maps the error to the initial state, :func:`start_state_map`).
+    With left eigenvectors ``w_i``, the modal coefficients are ``w_i^H M e0``: ``e0`` cancels
+    those of the next-slowest mode (one real constraint, or two for a complex pair) and, in what
+    remains, maximises the slowest one's.  Normalised to ``|e0| = size``.
+    """
+    z, V = np.linalg.eig(A)
+    W = np.linalg.inv(V)  # rows: left eigenvectors
+    order = np.argsort(-np.abs(z), kind="stable")
+    slow = order[0]
+    rest = [i for i in order if abs(z[i] - z[slow]) > 1e-9 and abs(z[i] - np.conj(z[slow])) > 1e-9]
+    cons = []
+    if rest:
+        g = W[rest[0]] @ M
+        cons = [g.real] + ([g.imag] if abs(z[rest[0]].imag) > 1e-12 else [])
+    N = _null_space(np.array(cons)) if cons else np.eye(3)
+    g = W[slow] @ M @ N
+    _, _, vt = np.linalg.svd(np.vstack((g.real, g.imag)))
+    e0 = N @ vt[0]
+    return size * e0 / np.linalg.norm(e0)
+
+
+# ---------------------------------------------------------------------------------------------
+# Closed-form stability conditions; stability regions in gain space
+# ---------------------------------------------------------------------------------------------
+
+
+def jury_v_loop_stable(Kpv, Kiv, dt):
+    """Closed-form stability of the ``v`` loop on a straight line (``w_r = 0``), PI part.
+
+    With ``w_r = 0`` the ``v`` loop decouples: ``e1_{k+1} = e1_k - dt dv_k`` and the PI of eq. (7)
+    (``Kdv = 0``) give the characteristic polynomial ``z^2 + (dt (Kpv + Kiv dt) - 2) z +
+    (1 - dt Kpv)``.  Jury's conditions ``|a0| < 1``, ``P(1) > 0``, ``P(-1) > 0`` read
+    ``0 < Kpv < 2/dt``, ``Kiv > 0`` and ``2 dt Kpv + dt^2 Kiv < 4``.  Vectorised over the gains.
+    """
+    Kpv, Kiv = np.asarray(Kpv, dtype=float), np.asarray(Kiv, dtype=float)
+    return (Kpv > 0) & (Kpv < 2.0 / dt) & (Kiv > 0) & (2 * dt * Kpv + dt * dt * Kiv < 4.0)
+
+
+def jury_v_gain_limits(Kpv: float, Kiv: float, dt: float) -> tuple[float, float]:
+    """Upper limits of ``Kpv`` (``Kiv`` fixed) and of ``Kiv`` (``Kpv`` fixed) from
+    :func:`jury_v_loop_stable`: ``min(2/dt, (4 - dt^2 Kiv)/(2 dt))`` and ``(4 - 2 dt Kpv)/dt^2``."""
+    return min(2 / dt, (4 - dt * dt * Kiv) / (2 * dt)), (4 - 2 * dt * Kpv) / dt**2
+
+
+def routh_w_loop_stable(Kpw, Kiw, v_r):
+    """Continuous-time (``dt -> 0``) stability of the ``w`` loop on a straight line, PI part.
+
+    ``e3' = -dw``, ``e2' = v_r e3``, ``dw = Kpw s + Kiw int s``, ``s = e3 + e2``:
+    ``L(s) = (Kpw s + Kiw)(s + v_r)/s^3``, characteristic polynomial
+    ``s^3 + Kpw s^2 + (Kpw v_r + Kiw) s + Kiw v_r``; Routh-Hurwitz: all coefficients positive and
+    ``Kpw (Kpw v_r + Kiw) > Kiw v_r``.  (Sampling adds an upper bound, near ``Kpw ~ 2/dt``.)
+    """
+    Kpw, Kiw = np.asarray(Kpw, dtype=float), np.asarray(Kiw, dtype=float)
+    return (Kpw > 0) & (Kiw > 0) & (v_r > 0) & (Kpw * (Kpw * v_r + Kiw) > Kiw * v_r)
+
+
+def first_crossing(rho: Callable[[float], float], xs: Sequence[float],
+                   tol: float = 1e-12) -> float | None:  # fmt: skip
+    """First ``x`` of the ordered ``xs`` with ``rho(x) >= 1``, refined by bisection between it
+    and its predecessor (relative tolerance ``tol``); None if there is none."""
+    prev = xs[0]
+    for x in xs[1:]:
+        if rho(x) >= 1.0:
+            a, b = prev, x
+            while abs(b - a) > tol * max(1.0, abs(b)):
+                m = 0.5 * (a + b)
+                a, b = (a, m) if rho(m) >= 1.0 else (m, b)
+            return 0.5 * (a + b)
+        prev = x
+    return None
+
+
+def stability_region(op: OperatingPoint, pair: str = "w", n: int = 81,
+                     log_range=(-2.0, 3.0), gains=PID_GAINS) -> dict:  # fmt: skip
+    """Spectral radius of the PID closed loop over a log grid of two gains, others at ``gains``.
+
+    ``pair="v"``: (Kpv, Kiv); ``pair="w"``: (Kpw, Kiw), each on ``n`` points of
+    ``10**log_range``.  Returns ``{"pair", "kp", "ki", "rho", "operating_point"}`` with ``rho``
+    (n, n): rows along the integral gain, columns along the proportional gain.
+    """
+    plant = error_plant(op)
+    kp = np.logspace(*log_range, n)
+    ki = np.logspace(*log_range, n)
+    ip, ii = (0, 1) if pair == "v" else (3, 4)
+    rho = np.empty((n, n))
+    K = np.array(gains, dtype=float)
+    for a, k_i in enumerate(ki):
+        for b, k_p in enumerate(kp):
+            K[ip], K[ii] = k_p, k_i
+            rho[a, b] = spectral_radius(pid_closed_loop_matrix(plant, K))
+    return {"pair": pair, "kp": kp, "ki": ki, "rho": rho, "operating_point": op}
+
+
+def stable_gain_interval(op: OperatingPoint, index: int, gains=PID_GAINS,
+                         limits=(1e-6, 1e6)) -> tuple[float, float]:  # fmt: skip
+    """The interval of PID gain ``index`` (0..5, order of eq. 7) keeping the loop stable.
+
+    The others at ``gains``: the connected interval of ``max|z| < 1`` containing
+    ``gains[index]``, scanned on a log grid within ``limits`` and refined by bisection; ``0`` /
+    ``inf`` when stable up to the limit, ``(nan, nan)`` when unstable at ``gains``.  A zero
+    default (``Kd``) starts the search at ``limits[0]``.
+    """
+    plant = error_plant(op)
+    K = np.array(gains, dtype=float)
+
+    def rho(lg):
+        K[index] = 10.0**lg
+        return spectral_radius(pid_closed_loop_matrix(plant, K))
+
+    g0 = max(float(gains[index]), limits[0])
+    l0, l_lo, l_hi = math.log10(g0), math.log10(limits[0]), math.log10(limits[1])
+    if rho(l0) >= 1.0:
+        return (math.nan, math.nan)
+    up = first_crossing(rho, np.linspace(l0, l_hi, 241), tol=1e-13)
+    down = first_crossing(rho, np.linspace(l0, l_lo, 241), tol=1e-13) if g0 > limits[0] else None
+    return (0.0 if down is None else 10.0**down, math.inf if up is None else 10.0**up)
+
+
+# ---------------------------------------------------------------------------------------------
+# Private helpers
+# ---------------------------------------------------------------------------------------------
+
+
+def _kinematic_error_step(op: OperatingPoint) -> ct.StateSpace:
+    """``de_{k+1} = E de_k + B du_k``, ``y_k = de_k``: the unicycle's error step (no input
+    dynamics), by CasADi AD at ``e = 0``, ``u = u_r``."""
+    # CasADi is imported here, on use, so that importing wmr never loads it (the oracle stays
+    # out of the simulator's import graph: tests/test_symbolic.py).
+    from wmr import symbolic as sym
+
+    E, B = sym.error_step_jacobian_function(op.integrator)(np.zeros(3), op.u_r, op.u_r, op.dt)
+    return ct.ss(np.asarray(E), np.asarray(B), np.eye(3), np.zeros((3, 2)), op.dt,
+                 inputs=("v", "w"), outputs=("e1", "e2", "e3"), name="plant")  # fmt: skip
+
+
+def _null_space(C: np.ndarray) -> np.ndarray:
+    _, sv, vt = np.linalg.svd(C)
+    rank = int(np.sum(sv > 1e-12 * max(sv.max(), 1.0)))
+    return vt[rank:].T
