@@ -80,6 +80,7 @@ __all__ = [
     "check",
     "render",
     "table",
+    "figure_names",
     "analyse_weight_filter",
     "pose_run",
     "windows",

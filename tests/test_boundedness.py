@@ -168,16 +168,21 @@ def test_kalman_contraction_unexcited_direction_without_cancellation():
     assert_allclose(c["alpha"], q / (1000.0 + q), rtol=EIG_RTOL)
 
 
-@pytest.mark.parametrize("seed", range(5))
-def test_kalman_contraction_matches_direct_on_random_filters(seed):
+def _random_filter(seed, n=6, m=2):
+    """A random filter step: prior ``P`` (n, n), ``H`` (m, n), ``R`` (m, m), ``Q`` (n, n), ``A``."""
     rng = np.random.default_rng(seed)
-    n, m = 6, 2
     X = rng.standard_normal((n, n))
     P = X @ X.T + 0.1 * np.eye(n)
     H = rng.standard_normal((m, n))
     R = np.diag(rng.uniform(0.5, 2.0, m))
     Q = np.diag(rng.uniform(0.05, 0.2, n))
-    A = np.eye(n) + 0.1 * rng.standard_normal((n, n))
+    return P, H, R, Q, np.eye(n) + 0.1 * rng.standard_normal((n, n))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_kalman_contraction_matches_direct_on_random_filters(seed):
+    n = 6
+    P, H, R, Q, A = _random_filter(seed, n)
     c = stab.kalman_contraction(P, H, R, Q, A=A)
     M = A @ (np.eye(n) - c["K"] @ H)
     assert_allclose(1 - stab.contraction_direct(M, P, c["P_next"]), c["alpha"], rtol=1e-9)
@@ -192,17 +197,12 @@ def test_kalman_contraction_matches_direct_on_random_filters(seed):
 
 @pytest.mark.parametrize("seed", range(3))
 def test_noise_term_is_the_trace_formula(seed):
-    # Oracle: tr(P_next^-1 (Q + K R K^T)) with an explicit inverse.
-    rng = np.random.default_rng(seed)
-    n, m = 7, 3
-    X = rng.standard_normal((n, n))
-    P_next = X @ X.T + 0.5 * np.eye(n)
-    K = rng.standard_normal((n, m))
-    q = rng.uniform(0.1, 1.0, n)
-    Y = rng.standard_normal((m, m))
-    R = Y @ Y.T + np.eye(m)
-    want = np.trace(np.linalg.inv(P_next) @ (np.diag(q) + K @ R @ K.T))
-    assert_allclose(stab.noise_term(P_next, K, q, R), want, rtol=EIG_RTOL)
+    # Oracle: tr(P_next^-1 (Q + K R K^T)) with an explicit inverse, on a random filter step.
+    P, H, R, Q, _ = _random_filter(seed, n=7, m=3)
+    c = stab.kalman_contraction(P, H, R, Q)
+    K, P_next = c["K"], c["P_next"]
+    want = np.trace(np.linalg.inv(P_next) @ (Q + K @ R @ K.T))
+    assert_allclose(stab.noise_term(P_next, K, np.diag(Q), R), want, rtol=EIG_RTOL)
 
 
 def test_theorem1_bound_arithmetic():

@@ -74,6 +74,15 @@ def test_probed_run_equals_kernel_bit_for_bit(name, controller, changes):
     assert np.array_equal(np.array([q for _, q, _ in trace.after]), kernel.q_hat)
 
 
+def test_probed_run_equals_kernel_when_it_diverges():
+    # A bound below the initial position error: the run stops at its first step, both ways.
+    sc = _short("lemniscate", duration=0.5, divergence_bound=0.05)
+    probed = simulate(sc, "iapid-nn-dekf", 0, probe=_Trace())
+    kernel = simulate(sc, "iapid-nn-dekf", 0)
+    assert probed.diverged and np.isnan(probed.rmse["position"])
+    assert identical_runs(probed, kernel)
+
+
 def test_identical_runs_sees_a_different_seed():
     sc = _short("lemniscate", duration=0.5)
     assert not identical_runs(simulate(sc, "iapid-nn-dekf", 0), simulate(sc, "iapid-nn-dekf", 1))

@@ -19,13 +19,14 @@ and what they saw at the previous step; the law's own logged numbers (``nn_error
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 
 from wmr import nn
 from wmr import stability as stab
-from wmr.controllers.iapid_nn_dekf import N_OUT, identifier_input
+from wmr.controllers.iapid_nn_dekf import identifier_input
 from wmr.ekf import nees
 from wmr.kinematics import wrap_angle
 from wmr.result import RunResult
@@ -63,15 +64,20 @@ def identifier_pair(u_prev: np.ndarray, q_hat_prev: np.ndarray, q_hat: np.ndarra
 
 
 def identical_runs(a: RunResult, b: RunResult) -> bool:
-    """Whether two runs are the same bit for bit: steps, poses, estimates, inputs, logged
-    controller state, final weights and covariance, pose estimate and RMSE."""
-    arrays = ("t", "q", "ref", "q_hat", "u", "state")
-    same = all(np.array_equal(getattr(a, f), getattr(b, f)) for f in arrays)
-    fa, fb = a.final, b.final
-    for f in ("theta", "P"):
-        same = same and np.array_equal(getattr(fa, f, None), getattr(fb, f, None))
-    return bool(same and a.diverged == b.diverged and a.rmse == b.rmse
-                and np.array_equal(a.pose_estimate, b.pose_estimate))  # fmt: skip
+    """Whether two runs are the same bit for bit: how they ended, their RMSE, every logged signal
+    (poses, reference, estimates, inputs, controller state), the final controller state field by
+    field and the pose filter's final estimate and covariance (NaN equals NaN)."""
+    if (a.diverged, a.diverged_at, a.cause) != (b.diverged, b.diverged_at, b.cause):
+        return False
+    if type(a.final) is not type(b.final):
+        return False
+    pairs = [(list(a.rmse.values()), list(b.rmse.values())),
+             (a.pose_estimate, b.pose_estimate), (a.pose_covariance, b.pose_covariance)]
+    pairs += [(getattr(a, f), getattr(b, f)) for f in ("t", "q", "ref", "q_hat", "u", "state")]
+    if a.final is not None:
+        pairs += [(getattr(a.final, f.name), getattr(b.final, f.name))
+                  for f in dataclasses.fields(a.final)]
+    return all(_same(x, y) for x, y in pairs)  # fmt: skip
 
 
 class WeightProbe:
@@ -109,7 +115,7 @@ class WeightProbe:
         if not self._active:
             return
         self._x, d = identifier_pair(*self._previous, q_hat, self.dt)
-        z, _ = nn.forward(theta, self._x, p.nn_n_h, N_OUT)
+        z, _ = nn.forward(theta, self._x, p.nn_n_h, p.H.shape[0])  # H: (outputs, weights)
         self._nu = d - z
         self._P_prior = P + np.diag(p.q_diag)  # eq. (28) with A = I
 
@@ -137,7 +143,7 @@ class WeightProbe:
         except np.linalg.LinAlgError:
             a["spd"][k] = 0.0
         # function-space error: prediction at x_{k-1} after the update vs the true increment
-        z, _ = nn.forward(theta, self._x, p.nn_n_h, N_OUT)
+        z, _ = nn.forward(theta, self._x, p.nn_n_h, H.shape[0])
         dq = (self.q_true[k] - self.q_true[k - 1]) / self.dt
         dq[2] = wrap_angle(self.q_true[k, 2] - self.q_true[k - 1, 2]) / self.dt
         a["pred_error"][k] = np.linalg.norm(z - dq)
@@ -185,3 +191,11 @@ class PoseProbe:
                 np.linalg.cholesky(P)
             except np.linalg.LinAlgError:
                 self.spd_failures += 1
+
+
+def _same(x, y) -> bool:
+    """Bit-for-bit equality of two arrays or numbers (NaN equals NaN; None only equals None)."""
+    if x is None or y is None:
+        return x is None and y is None
+    return bool(np.array_equal(np.asarray(x, dtype=float), np.asarray(y, dtype=float),
+                               equal_nan=True))  # fmt: skip
