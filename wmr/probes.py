@@ -93,6 +93,21 @@ class WeightProbe:
     achieved contraction ``alpha_k`` of (48) and ``||M_k||`` (``wmr.stability.kalman_contraction``);
     ``direct_gap = 1 - lambda_k`` from the stored ``P_{k|k}`` (``contraction_direct``); Theorem 1's
     ``mu_k`` (``wmr.stability.noise_term``).  ``theta[k]`` holds the weights after the law at ``k``.
+
+    The identifier's innovation is rebuilt from what the probe saw at the previous step
+    (:func:`identifier_pair`); the law's own norm of it is its logged signal ``nn_error``, to
+    compare with ``a["innovation"]`` after the run.
+
+    Parameters
+    ----------
+    n_steps : int
+        Steps of the run (the arrays' length).
+    n_weights : int
+        Length ``n`` of the flat weight vector ``theta``.
+    dt : float
+        Sample period [s].
+    every : int
+        Compute the O(n^3) quantities every ``every`` steps (all steps with 1).
     """
 
     FIELDS = ("norm_H", "lmin_prior", "lmax_prior", "lmin_post", "lmax_post", "alpha_k", "norm_M",
@@ -169,6 +184,8 @@ class WeightProbe:
 
 class PoseProbe:
     """Pose-filter consistency at every step, and whether the weight covariance stays SPD.
+
+    ``n_steps``: steps of the run (the arrays' length).
 
     ``nees[k]``: NEES of the posterior at ``t_k`` against the true pose (``k = 0``: the first
     estimate is the measurement and ``P = R``); ``nis[k]``: NIS of the pose update at ``t_k``
