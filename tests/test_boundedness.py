@@ -1,15 +1,20 @@
-"""Tests of wmr.stability (Assumption 1, Lemma 2, eq. 48) and of analysis/boundedness.py."""
+"""Tests of wmr.stability (Assumption 1, Lemma 2, eq. 48, Theorem 1) and of the boundedness study
+(analysis/boundedness.py); the probes it observes runs with are tested in test_probes.py."""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
 from analysis import boundedness as bd
+from analysis import common
+from wmr import loop
 from wmr import scenario as scn
 from wmr import stability as stab
 from wmr.scenario import Disturbance
@@ -163,16 +168,21 @@ def test_kalman_contraction_unexcited_direction_without_cancellation():
     assert_allclose(c["alpha"], q / (1000.0 + q), rtol=EIG_RTOL)
 
 
-@pytest.mark.parametrize("seed", range(5))
-def test_kalman_contraction_matches_direct_on_random_filters(seed):
+def _random_filter(seed, n=6, m=2):
+    """A random filter step: prior ``P`` (n, n), ``H`` (m, n), ``R`` (m, m), ``Q`` (n, n), ``A``."""
     rng = np.random.default_rng(seed)
-    n, m = 6, 2
     X = rng.standard_normal((n, n))
     P = X @ X.T + 0.1 * np.eye(n)
     H = rng.standard_normal((m, n))
     R = np.diag(rng.uniform(0.5, 2.0, m))
     Q = np.diag(rng.uniform(0.05, 0.2, n))
-    A = np.eye(n) + 0.1 * rng.standard_normal((n, n))
+    return P, H, R, Q, np.eye(n) + 0.1 * rng.standard_normal((n, n))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_kalman_contraction_matches_direct_on_random_filters(seed):
+    n = 6
+    P, H, R, Q, A = _random_filter(seed, n)
     c = stab.kalman_contraction(P, H, R, Q, A=A)
     M = A @ (np.eye(n) - c["K"] @ H)
     assert_allclose(1 - stab.contraction_direct(M, P, c["P_next"]), c["alpha"], rtol=1e-9)
@@ -183,6 +193,16 @@ def test_kalman_contraction_matches_direct_on_random_filters(seed):
 
 
 # --- Theorem 1, chi^2 bands, exact-model consistency ----------------------------------------
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_noise_term_is_the_trace_formula(seed):
+    # Oracle: tr(P_next^-1 (Q + K R K^T)) with an explicit inverse, on a random filter step.
+    P, H, R, Q, _ = _random_filter(seed, n=7, m=3)
+    c = stab.kalman_contraction(P, H, R, Q)
+    K, P_next = c["K"], c["P_next"]
+    want = np.trace(np.linalg.inv(P_next) @ (Q + K @ R @ K.T))
+    assert_allclose(stab.noise_term(P_next, K, np.diag(Q), R), want, rtol=EIG_RTOL)
 
 
 def test_theorem1_bound_arithmetic():
@@ -224,44 +244,14 @@ def test_random_walk_consistency_against_simulation():
     assert_allclose(np.mean(nis), e_nis, rtol=MC_RTOL)
 
 
-# --- The replay and the analysis ------------------------------------------------------------
+# --- The study ------------------------------------------------------------------------------
+
+COMMITTED = Path(__file__).resolve().parents[1] / "paper"
 
 
 def _short(name, duration=2.0, **changes):
     sc = scn.load(scn.builtin(name))
     return dataclasses.replace(sc, duration=duration, **changes)
-
-
-class _Trace:
-    def __init__(self):
-        self.q_hat, self.u = [], []
-
-    def after_law(self, k, p, s, W, P, q_hat, u):
-        self.q_hat.append(q_hat.copy())
-        self.u.append(u.copy())
-
-
-@pytest.mark.parametrize(
-    "name, controller, changes",
-    [
-        ("lemniscate", "iapid-nn-dekf", {}),
-        ("sinusoid", "adaptive-pid", {}),
-        ("lemniscate", "backstepping", {}),
-        ("sinusoid-perturbed", "iapid-nn-dekf",
-         {"disturbances": (Disturbance(0.5, 1.0, (0.1, 0.3)),)}),
-    ],
-    ids=["iapid-lemniscate", "apid-sinusoid", "bsc-lemniscate", "iapid-disturbed"],
-)  # fmt: skip
-def test_replay_equals_simulate_bit_for_bit(name, controller, changes):
-    sc = _short(name, **changes)
-    ref = simulate(sc, controller, 3)
-    trace = _Trace()
-    rp = bd.replay(sc, controller, 3, probe=trace)
-    assert not rp.diverged and rp.steps == sc.n_steps
-    assert np.array_equal(ref.q[-1], rp.q)
-    assert np.array_equal(ref.q_hat, np.array(trace.q_hat))
-    assert np.array_equal(ref.u, np.array(trace.u))
-    assert np.array_equal(ref.state[-1], rp.s[: len(ref.state_names)])
 
 
 def test_analyse_weight_filter_short_run():
@@ -280,6 +270,11 @@ def test_analyse_weight_filter_short_run():
     assert rec["innovation_recomputed_max_rel_diff"] < bd.INNOVATION_RTOL
     assert rec["direct_vs_cancellation_free_max_abs"] < bd.DIRECT_ATOL
     assert series["alpha_k"].shape == (sc.n_steps,) and np.isnan(series["alpha_k"][0])
+    # the proxy theta* is the end of a run twice as long: the error starts at ||theta_0 - theta*||
+    theta_star = simulate(dataclasses.replace(sc, duration=2.0), "iapid-nn-dekf", 1).final.theta
+    theta_0 = loop.prepare(sc, "iapid-nn-dekf", 1).theta
+    assert_allclose(rec["weight_error_initial"], np.linalg.norm(theta_0 - theta_star),
+                    rtol=EXACT_RTOL)  # fmt: skip
 
 
 def test_pose_consistency_windows_and_bands():
@@ -288,10 +283,59 @@ def test_pose_consistency_windows_and_bands():
     )
     names = [w[0] for w in bd.windows(sc)]
     assert names == ["all", "0-0.4 s", "0.4-0.7 s (disturbance)", "0.7-1 s"]
-    runs = [bd.pose_runs(sc, seed) for seed in range(4)]
+    runs = [bd.pose_run(sc, seed) for seed in range(4)]
     rec, series = bd.pose_consistency(sc, runs)
     assert rec["nees_bounds"] == list(stab.chi2_band(3, 4))
     assert rec["consistency_spd_failures"] == 0 and rec["consistency_diverged_runs"] == 0
     assert np.isnan(series["nis"][0]) and np.all(np.isfinite(series["nees"]))
     for w in rec["consistency_windows"].values():
         assert_allclose(w["nees_in_band"] + w["nees_below_band"] + w["nees_above_band"], 1.0)
+
+
+@pytest.fixture(scope="module")
+def committed():
+    record = common.load_record(COMMITTED, bd.STEM)
+    if record is None:
+        pytest.skip("no committed paper/results/boundedness.json")
+    return record
+
+
+def test_check_holds_on_the_committed_record(committed):
+    bd.check(committed)
+
+
+@pytest.mark.parametrize(
+    "key, value",
+    [("ineq48_fraction", 0.999), ("replay_equals_simulate", False), ("alpha", 1e-3),
+     ("covariance_repairs", 1), ("nees_mean", 3.0)],
+)  # fmt: skip
+def test_check_rejects_a_broken_claim(committed, key, value):
+    record = copy.deepcopy(committed)
+    record["sinusoid"][key] = value
+    with pytest.raises(AssertionError, match="sinusoid"):
+        bd.check(record)
+
+
+def test_render_is_the_committed_report_section(committed):
+    report = (COMMITTED / "report.md").read_text()
+    table = (COMMITTED / "tables" / "boundedness.md").read_text()
+    assert bd.table(committed) == table
+    section = bd.render(committed)
+    assert section.startswith(f"## {bd.TITLE}\n\n")
+    assert section in report
+    for name in committed:
+        assert f"![boundedness_{name}.png](figures/boundedness_{name}.png)" in section
+
+
+@pytest.mark.slow
+def test_quick_run_writes_and_checks(tmp_path):
+    record = bd.run(tmp_path, quick=True, workers=2)
+    bd.check(record)
+    assert common.load_record(tmp_path, bd.STEM) == record
+    bd.check(common.load_record(tmp_path, bd.STEM))
+    assert (tmp_path / "tables" / "boundedness.md").read_text() == bd.table(record)
+    for name in bd.figure_names(record):
+        assert (tmp_path / "figures" / name).stat().st_size > 0
+    first = next(iter(record.values()))
+    assert first["instrumented_every"] == bd.QUICK_EVERY
+    assert first["consistency_runs"] == bd.QUICK_SEEDS

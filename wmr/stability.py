@@ -53,6 +53,7 @@ __all__ = [
     "contraction_direct",
     "kalman_contraction",
     "ineq48_holds",
+    "noise_term",
     "theorem1_bound",
     "chi2_band",
     "random_walk_consistency",
@@ -206,6 +207,34 @@ def kalman_contraction(P_prior: np.ndarray, H: np.ndarray, R: np.ndarray, Q: np.
 def ineq48_holds(alpha_achieved: np.ndarray | float, alpha: float) -> np.ndarray | bool:
     """(48) holds with ``alpha`` at the steps whose achieved contraction is ``>= alpha``."""
     return np.asarray(alpha_achieved) >= alpha
+
+
+def noise_term(P_next: np.ndarray, K: np.ndarray, q_diag: np.ndarray, R: np.ndarray) -> float:
+    """Theorem 1's noise term of one step, ``mu_k = E[s_k^T Pi_{k+1} s_k]`` (E10).
+
+    With ``s_k = w_k - A K_k v_k`` (``A = I``: the weights are a random walk), ``w ~ N(0, Q)``,
+    ``v ~ N(0, R)`` independent (the filter's own noise model)::
+
+        mu_k = tr(Pi_{k+1} (Q + K R K^T)),   Pi_{k+1} = P_{k+1|k}^-1,
+
+    evaluated as ``sum (L^-1)_ij^2 q_j + ||L^-1 K C||_F^2`` with ``P_{k+1|k} = L L^T`` and
+    ``R = C C^T`` (Cholesky; no explicit inverse of ``P``).
+
+    Parameters
+    ----------
+    P_next : ndarray, shape (n, n)
+        The next prior ``P_{k+1|k}`` (SPD).
+    K : ndarray, shape (n, m)
+        The Kalman gain of eq. (29).
+    q_diag : ndarray, shape (n,)
+        The diagonal of ``Q`` (diagonal process noise).
+    R : ndarray, shape (m, m)
+        Measurement-noise covariance (SPD).
+    """
+    L = np.linalg.cholesky(P_next)
+    Linv = sla.solve_triangular(L, np.eye(L.shape[0]), lower=True)
+    LK = Linv @ K @ np.linalg.cholesky(R)
+    return float(np.sum(Linv**2 * np.asarray(q_diag)[None, :]) + np.sum(LK**2))
 
 
 def theorem1_bound(alpha: float, p_min: float, p_max: float, mu: float, e0_sq: float,

@@ -3,9 +3,11 @@
 #
 # The paper's stability section (§3.4, a copy of Reif et al. 1999) bounds the *weight-estimation
 # error* of the network's EKF if Assumption 1's constants exist. Here they are measured along a
-# short IAPID-NN-DEKF run (every 10th filter step instrumented) by replaying the closed loop with
-# the simulator's own jitted pieces. The full study (every step, 3 scenarios, 50 Monte-Carlo seeds
-# for the pose EKF) is `wmr analyze boundedness`; its numbers are in `paper/report.md`.
+# short IAPID-NN-DEKF run (every 10th filter step instrumented) by running the simulator with a
+# probe (`simulate(..., probe=wmr.probes.WeightProbe(...))`): the same phases as its compiled
+# kernel, step by step, with hooks around the controller law. The full study (every step,
+# 3 scenarios, 50 Monte-Carlo seeds for the pose EKF) is `wmr analyze boundedness`; its numbers
+# are in `paper/report.md`.
 # %%
 import dataclasses
 
@@ -20,7 +22,7 @@ for key in ("a_bar", "q_min", "r_min"):
     print(f"{key:>8} = {rec[key]:.3g}")
 print(f"   c_bar = {rec['c_bar']:.1f}   (max ||H_k||)")
 print(f"   p_max = {rec['p_max']:.1f}  (max eigenvalue of the prior P)")
-print("replay equals simulate bit for bit:", rec["replay_equals_simulate"])
+print("probed run equals the kernel's bit for bit:", rec["replay_equals_simulate"])
 # %% [md]
 # ## Lemma 2's α and inequality (48)
 #
