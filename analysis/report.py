@@ -127,18 +127,6 @@ def _errata(out: Path) -> list[str]:
     return ["## Errata of the paper and the evidence", "", *table, ""]
 
 
-def _study(out: Path, stem: str, title: str, data: dict) -> str:
-    """The section of a study that renders none yet (``render = None``): its notes, its table
-    (``tables/<stem>.md``) and its figures (``figures/<stem>*.png``)."""
-    notes = data.get("notes") if isinstance(data, dict) else None
-    table = out / "tables" / f"{stem}.md"
-    # the performance study's figure is being renamed from perf_vs_weights.png
-    prefix = "perf" if stem == "performance" else stem
-    figs = sorted(p.name for p in (out / "figures").glob(f"{prefix}*.png"))
-    return common.section(title, notes if isinstance(notes, str | list) else None,
-                          table.read_text() if table.exists() else "", figs)  # fmt: skip
-
-
 def build(out: str | Path) -> str:
     """The report's Markdown from the results stored in ``out``: the header, the assumptions,
     the errata, then the section of every registered study (``analysis.STUDIES``, in order)
@@ -155,9 +143,7 @@ def build(out: str | Path) -> str:
     for name in analysis.STUDIES:  # a study's STEM is its registry name
         record = common.load_record(out, name)
         if record is not None:  # only then import the study (some import heavy packages)
-            study = analysis.get(name)
-            sections.append(study.render(record) if study.render is not None
-                            else _study(out, study.STEM, study.TITLE, record))  # fmt: skip
+            sections.append(analysis.get(name).render(record))
     if not sections:
         sections.append("## Studies\n\nNot generated yet (`wmr reproduce`).\n")
     return "\n".join(["\n".join(head), *sections]).rstrip() + "\n"

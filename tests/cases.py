@@ -290,6 +290,88 @@ INVALID: tuple[Invalid, ...] = (
     _case("empty-name", 'name = "case"', 'name = "  "', "name", "'  '"),
     _case("name-with-slash", 'name = "case"', 'name = "../escape"', "name", "'../escape'"),
     _case("name-dotdot", 'name = "case"', 'name = ".."', "name", "'..'"),
+    *(
+        _case(id, "[controllers.backstepping]", f"{plant}\n\n[controllers.backstepping]", key,
+              value)
+        for id, plant, key, value in (
+            ("plant-unknown-key", "[plant]\nv_gian = 0.8", "plant.v_gian", "0.8"),
+            ("plant-wrong-type", '[plant]\nv_gain = "big"', "plant.v_gain", "'big'"),
+            ("plant-nan-gain", "[plant]\nv_gain = nan", "plant.v_gain", "nan"),
+            ("plant-inf-slip", "[plant]\nslip = inf", "plant.slip", "inf"),
+            ("plant-negative-lag", "[plant]\nactuator_tau = -0.1", "plant.actuator_tau", "-0.1"),
+            ("plant-negative-slip", "[plant]\nslip = -0.2", "plant.slip", "-0.2"),
+            ("plant-fractional-delay", "[plant]\ndelay_steps = 1.5", "plant.delay_steps", "1.5"),
+            ("plant-negative-delay", "[plant]\ndelay_steps = -1", "plant.delay_steps", "-1"),
+            ("plant-unknown-model", '[plant]\nmodel = "bicycle"', "plant.model", "'bicycle'"),
+            ("plant-dynamic-without-model", "[plant]\n[plant.dynamic]\nmass = 10.0",
+             "plant.dynamic", "10.0"),
+            ("plant-model-without-dynamic", '[plant]\nmodel = "dynamic"', "plant.dynamic",
+             None),
+            ("plant-dynamic-unknown-key",
+             '[plant]\nmodel = "dynamic"\n[plant.dynamic]\nmas = 10.0', "plant.dynamic.mas",
+             "10.0"),
+            ("plant-zero-mass", '[plant]\nmodel = "dynamic"\n[plant.dynamic]\nmass = 0.0',
+             "plant.dynamic.mass", "0.0"),
+            ("plant-negative-inertia",
+             '[plant]\nmodel = "dynamic"\n[plant.dynamic]\ninertia = -0.5',
+             "plant.dynamic.inertia", "-0.5"),
+            ("plant-zero-bandwidth",
+             '[plant]\nmodel = "dynamic"\n[plant.dynamic]\nbandwidth = [0.0, 20.0]',
+             "plant.dynamic.bandwidth", "0.0"),
+            ("plant-negative-friction",
+             '[plant]\nmodel = "dynamic"\n[plant.dynamic]\nfriction = [-1.0, 0.0]',
+             "plant.dynamic.friction", "-1.0"),
+            ("plant-lag-on-dynamic",
+             '[plant]\nmodel = "dynamic"\nactuator_tau = 0.1\n[plant.dynamic]',
+             "plant.actuator_tau", "0.1"),
+            ("plant-change-unknown-key", "[plant]\n[[plant.change]]\nat = 1.0\nfoo = 1.0",
+             "plant.change[0].foo", "1.0"),
+            ("plant-change-fixed-key", "[plant]\n[[plant.change]]\nat = 1.0\ndelay_steps = 2",
+             "plant.change[0].delay_steps", "2"),
+            ("plant-change-at-duration", "[plant]\n[[plant.change]]\nat = 2.0\nv_gain = 0.5",
+             "plant.change[0].at", "2.0"),
+            ("plant-change-negative-at",
+             "[plant]\n[[plant.change]]\nat = -1.0\nv_gain = 0.5", "plant.change[0].at",
+             "-1.0"),
+            ("plant-change-nan-value", "[plant]\n[[plant.change]]\nat = 1.0\nslip = nan",
+             "plant.change[0].slip", "nan"),
+            ("plant-change-negative-value",
+             "[plant]\n[[plant.change]]\nat = 1.0\nactuator_tau = -1.0",
+             "plant.change[0].actuator_tau", "-1.0"),
+            ("plant-change-dynamic-key-on-kinematic",
+             "[plant]\n[[plant.change]]\nat = 1.0\nmass = 15.0", "plant.change[0].mass",
+             "15.0"),
+            ("plant-change-missing-at", "[plant]\n[[plant.change]]\nv_gain = 0.5",
+             "plant.change[0].at", None),
+            ("plant-change-nothing", "[plant]\n[[plant.change]]\nat = 1.0",
+             "plant.change[0]", None),
+        )
+    ),
+    *(
+        _case(id, 'kind = "circle"\nradius = 1.0\nperiod = 20.0', f'kind = "waypoints"\n{ref}',
+              key, value)
+        for id, ref, key, value in (
+            ("waypoints-five-rows",
+             "points = [[0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [2.0, 2.0, 0.0], [3.0, 3.0, 0.0], "
+             "[4.0, 4.0, 0.0]]", "reference.points", "5"),
+            ("waypoints-t-not-increasing",
+             "points = [[0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [1.0, 2.0, 0.0], [3.0, 3.0, 0.0], "
+             "[4.0, 4.0, 0.0], [5.0, 5.0, 0.0]]", "reference.points row 2", "1.0"),
+            ("waypoints-duration-beyond-last-t",
+             "points = [[0.0, 0.0, 0.0], [0.3, 1.0, 0.0], [0.6, 2.0, 0.0], [0.9, 3.0, 0.0], "
+             "[1.2, 4.0, 0.0], [1.5, 5.0, 0.0]]", "duration", "2.0"),
+            ("waypoints-standing-still",
+             "points = [[0.0, 1.0, 1.0], [1.0, 1.0, 1.0], [2.0, 1.0, 1.0], [3.0, 1.0, 1.0], "
+             "[4.0, 1.0, 1.0], [5.0, 1.0, 1.0]]", "reference", "speed"),
+            ("waypoints-file-and-points", 'file = "a.csv"\npoints = []', "reference", None),
+            ("waypoints-missing-file", 'file = "no-such-path.csv"', "reference.file",
+             "no-such-path.csv"),
+            ("waypoints-unknown-key", "size = 1.0", "reference.size", "1.0"),
+            ("waypoints-bad-cell",
+             'points = [[0.0, 0.0, 0.0], [1.0, "x", 0.0], [2.0, 2.0, 0.0], [3.0, 3.0, 0.0], '
+             "[4.0, 4.0, 0.0], [5.0, 5.0, 0.0]]", "reference.points[1][1]", "'x'"),
+        )
+    ),
 )
 
 

@@ -78,9 +78,10 @@ def test_run_writes_summary_trajectory_and_figure(name, tmp_path, capsys):
     sc = scn.load(path)
     r = sim.simulate(sc, "backstepping", sc.seed)
     summary = json.loads((out / "summary.json").read_text())
-    # DESIGN §3.2: exactly these keys, in this order
-    assert list(summary) == ["scenario", "seed", "runs"]
+    # DESIGN §3.2 (and §3.3: the plant in force): exactly these keys, in this order
+    assert list(summary) == ["scenario", "seed", "plant", "runs"]
     assert (summary["scenario"], summary["seed"]) == (name, 0)
+    assert summary["plant"] == sc.plant.to_json() and summary["plant"]["changes"] == []
     assert len(summary["runs"]) == 1
     run = summary["runs"][0]
     assert list(run) == ["controller", "rmse", "diverged", "diverged_at"]
@@ -116,6 +117,18 @@ def test_run_writes_summary_trajectory_and_figure(name, tmp_path, capsys):
     assert again["summary.json"] == first["summary.json"]
     assert again["trajectory-backstepping.csv"] == first["trajectory-backstepping.csv"]
     assert again["tracking.png"] == first["tracking.png"]
+
+
+def test_run_of_a_non_ideal_plant_names_it_in_the_header_and_the_summary(tmp_path, capsys):
+    path = scn.builtin("lemniscate-payload")
+    out = tmp_path / "out"
+    code, stdout, err = _run(["run", str(path), "--controller", "pid", "--out", str(out)], capsys)
+    assert (code, err) == (0, "")
+    header = stdout.splitlines()[0]
+    assert "plant: dynamic" in header and "at 20 s: mass 15.0" in header
+    plant = json.loads((out / "summary.json").read_text())["plant"]
+    assert plant["model"] == "dynamic" and plant["dynamic"]["mass"] == 10.0
+    assert plant["changes"] == [{"at": 20.0, "mass": 15.0, "inertia": 0.75}]
 
 
 def _short_scenario(tmp_path, text=BASE_TOML, name="short.toml") -> Path:

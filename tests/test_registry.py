@@ -94,7 +94,7 @@ def test_gains_and_jacobian_views_of_the_pid_family(lemniscate):
 @pytest.mark.parametrize("kind", KINDS, ids=lambda k: k.name)
 def test_reference_kind_derivatives_match_finite_differences(kind):
     """The path's analytic first and second derivatives against central differences."""
-    params = {p: 1.3 + 0.4 * i for i, p in enumerate(kind.params)}
+    params = kind.example
     t = np.linspace(0.3, 9.7, 23)
     h = 1e-5
     x, y, xd, yd, xdd, ydd = references.path_derivatives(kind.name, params, t)
@@ -107,10 +107,12 @@ def test_reference_kind_derivatives_match_finite_differences(kind):
 
 
 @pytest.mark.parametrize("kind", KINDS, ids=lambda k: k.name)
-def test_reference_kind_positivity_is_enforced_by_the_loader(kind):
+def test_reference_kind_example_loads_and_positivity_is_enforced(kind):
+    table = {k: ([list(r) for r in v] if isinstance(v, tuple) else v)
+             for k, v in kind.example.items()}  # fmt: skip
     base = {"name": "r", "duration": 1.0, "dt": 0.1, "initial_pose": [0.0, 0.0, 0.0],
-            "reference": {"kind": kind.name, **{p: 1.0 for p in kind.params}}}  # fmt: skip
-    assert scn.from_dict(base).reference.kind == kind.name
+            "reference": {"kind": kind.name, **table}}  # fmt: skip
+    assert scn.from_dict(base).reference.params == kind.example
     for p in kind.positive:
         bad = {**base, "reference": {**base["reference"], p: 0.0}}
         with pytest.raises(scn.ScenarioError, match=f"reference.{p}"):
@@ -123,7 +125,7 @@ def test_every_study_has_the_study_shape(name):
     study = analysis.get(name)
     assert study.STEM == name and isinstance(study.TITLE, str) and study.TITLE
     assert callable(study.run) and callable(study.check)
-    assert study.render is None or callable(study.render)
+    assert callable(study.render)
     assert importlib.util.find_spec(f"analysis.{name}") is not None
 
 

@@ -47,28 +47,18 @@ def _study(stem, title, render=None):
 
 
 def test_each_stored_study_renders_its_section_in_registry_order(tmp_path, monkeypatch):
-    """A study with ``render`` gives its own section; one without (``render = None``, while it is
-    being converted) gets the generic one: notes, ``tables/STEM.md``, ``figures/STEM*.png`` (the
-    performance figure under either name); a study without a record is left out."""
-    studies = {"alpha": _study("alpha", "Alpha", lambda record: f"## Alpha\n\n{record['x']}\n"),
-               "missing": _study("missing", "Missing", lambda record: "## Missing\n"),
-               "performance": _study("performance", "Performance")}  # fmt: skip
-    monkeypatch.setattr(analysis, "STUDIES", tuple(studies))
-    monkeypatch.setattr(analysis, "get", studies.__getitem__)
-    for stem, record in (("alpha", {"x": 42}), ("performance", {"notes": ["a note"]})):
-        (tmp_path / "results").mkdir(exist_ok=True)
+    """Each study whose record is stored renders its section from that record, in registry
+    order; a study without a record is left out (and not even imported)."""
+    studies = {"beta": _study("beta", "Beta", lambda record: f"## Beta\n\n{record['y']}\n"),
+               "alpha": _study("alpha", "Alpha", lambda record: f"## Alpha\n\n{record['x']}\n")}
+    monkeypatch.setattr(analysis, "STUDIES", (*studies, "missing"))
+    monkeypatch.setattr(analysis, "get", studies.__getitem__)  # KeyError if "missing" is asked
+    (tmp_path / "results").mkdir()
+    for stem, record in (("alpha", {"x": 42}), ("beta", {"y": 7})):
         (tmp_path / "results" / f"{stem}.json").write_text(json.dumps(record))
-    (tmp_path / "tables").mkdir()
-    (tmp_path / "tables" / "performance.md").write_text("| a |\n|---|\n| 1 |\n")
-    (tmp_path / "figures").mkdir()
-    for name in ("perf_vs_weights.png", "performance_vs_weights.png", "other.png"):
-        (tmp_path / "figures" / name).write_bytes(b"")
     text = report.build(tmp_path)
-    assert re.findall(r"^## (.+)$", text, flags=re.M)[-2:] == ["Alpha", "Performance"]
-    figures = "".join(f"![{f}](figures/{f})\n"
-                      for f in ("perf_vs_weights.png", "performance_vs_weights.png"))
-    assert text.endswith("## Alpha\n\n42\n\n## Performance\n\n- a note\n\n| a |\n|---|\n| 1 |\n\n"
-                         + figures)
+    assert re.findall(r"^## (.+)$", text, flags=re.M)[-2:] == ["Beta", "Alpha"]
+    assert text.endswith("## Beta\n\n7\n\n## Alpha\n\n42\n")
 
 
 def test_report_without_study_records_says_so(tmp_path):

@@ -147,6 +147,7 @@ def _convert(key: str, value: Any, annotation: Any, default: Any) -> Any:
 def from_table(cls: type, table: Mapping[str, Any], where: str) -> Any:
     """Build the frozen dataclass ``cls`` from a TOML ``table`` found at dotted path ``where``.
 
+    Fields with ``metadata={"toml": False}`` are not keys of the table (the caller builds them).
     Unknown keys, wrong types, non-finite numbers and wrong tuple lengths raise
     :class:`SettingError` with the full dotted key; so does any :class:`SettingError` or
     ``ValueError`` raised by the class's ``__post_init__`` (a plain ``ValueError`` is reported
@@ -155,7 +156,9 @@ def from_table(cls: type, table: Mapping[str, Any], where: str) -> Any:
     if not isinstance(table, Mapping):
         raise SettingError(where, table, "must be a table")
     hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    # a field with metadata {"toml": False} is built by the caller, not read from the table
+    fields = {f.name: f for f in dataclasses.fields(cls)
+              if f.init and f.metadata.get("toml", True)}  # fmt: skip
     prefix = f"{where}." if where else ""
     for name in table:
         if name not in fields:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import shutil
 import sys
 import traceback
 from pathlib import Path
@@ -73,9 +74,11 @@ MAX_TRAJECTORY_STEPS = 1_000_000
 
 
 def cmd_run(args) -> int:
+    import tempfile
+
     from wmr import scenario as scn
     from wmr import sim
-    from wmr.io import save_figure, write_csv, write_json
+    from wmr.io import save_figure, write_json
     from wmr.plots import tracking_figure
 
     try:
@@ -89,47 +92,58 @@ def cmd_run(args) -> int:
         raise UsageError(f"--out {str(out)!r}: exists and is not a directory")
 
     keep = sc.n_steps <= MAX_TRAJECTORY_STEPS
-    runs = [sim.simulate(sc, name, seed, keep_trajectory=keep) for name in names]
-    summary = {"scenario": sc.name, "seed": seed, "runs": [r.summary() for r in runs]}
-    print(f"scenario {sc.name} (seed {seed}, {sc.n_steps} steps of {sc.dt} s)")
-    print(_format_table(summary["runs"]))
-    for r in runs:
-        if r.diverged:
-            print(f"note: {r.controller} diverged at t = {r.diverged_at:.2f} s: {r.cause}")
-    fig = None
-    if keep:  # render before writing anything, so a plotting failure leaves no partial output
-        import matplotlib.pyplot as plt
-
-        # a literal "$" in the name would start matplotlib mathtext (and "$\\frac$" fails to parse)
-        title = f"{sc.name} (seed {seed})".replace("$", r"\$")
-        fig = tracking_figure(runs, title=title)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as err:  # e.g. a parent of --out is a file, or no permission: bad option
-        raise UsageError(f"--out {str(out)!r}: cannot create the folder: {err.strerror}") from None
-    write_json(out / "summary.json", summary)
-    if not keep:
-        print(f"note: {sc.n_steps} steps > {MAX_TRAJECTORY_STEPS}: trajectories and figure not "
-              f"kept; wrote {out}/summary.json")  # fmt: skip
-        return 0
-    for r in runs:
-        header = ["t", "x", "y", "theta", "x_r", "y_r", "theta_r", "v_r", "w_r",
-                  "x_hat", "y_hat", "theta_hat", "v", "w", *r.state_names]  # fmt: skip
-        n = len(r.u)
-        rows = []
-        for k in range(len(r.t)):
-            per_step = (
-                [*r.q_hat[k], *r.u[k], *r.state[k]]
-                if k < n
-                else [""] * (5 + len(r.state_names))
-            )
-            rows.append([float(r.t[k]), *map(float, r.q[k]), *map(float, r.ref[k]),
-                         *[float(x) if x != "" else x for x in per_step]])  # fmt: skip
-        write_csv(out / f"trajectory-{r.controller}.csv", header, rows)
+    plant = "" if sc.plant.ideal else f"; {sc.plant.describe()}"
+    print(f"scenario {sc.name} (seed {seed}, {sc.n_steps} steps of {sc.dt} s{plant})", flush=True)
+    with tempfile.TemporaryDirectory(prefix="wmr-run-") as tmp:
+        # One controller at a time: its trajectory goes to a CSV (streamed) and only a
+        # decimated copy stays for the figure, so memory does not grow with the run length.
+        runs = []
+        for name in names:
+            r = sim.simulate(sc, name, seed, keep_trajectory=keep)
+            if keep:
+                r.to_csv(Path(tmp) / f"trajectory-{r.controller}.csv")
+                r = _for_figure(r)
+            runs.append(r)
+        summary = {"scenario": sc.name, "seed": seed, "plant": sc.plant.to_json(),
+                   "runs": [r.summary() for r in runs]}  # fmt: skip
+        print(_format_table(summary["runs"]))
+        for r in runs:
+            if r.diverged:
+                print(f"note: {r.controller} diverged at t = {r.diverged_at:.2f} s: {r.cause}")
+        fig = None
+        if keep:  # render before writing into --out, so a plotting failure leaves nothing there
+            # a literal "$" in the name would start matplotlib mathtext ("$\\frac$" fails)
+            title = f"{sc.name} (seed {seed})" + (f"\n{sc.plant.describe()}" if plant else "")
+            fig = tracking_figure(runs, title=title.replace("$", r"\$"))
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as err:  # e.g. a parent of --out is a file, or no permission: bad option
+            raise UsageError(f"--out {str(out)!r}: cannot create the folder: {err.strerror}"
+                             ) from None  # fmt: skip
+        write_json(out / "summary.json", summary)
+        if not keep:
+            print(f"note: {sc.n_steps} steps > {MAX_TRAJECTORY_STEPS}: trajectories and figure "
+                  f"not kept; wrote {out}/summary.json")  # fmt: skip
+            return 0
+        for path in sorted(Path(tmp).glob("trajectory-*.csv")):
+            shutil.move(str(path), out / path.name)
     save_figure(fig, out / "tracking.png")
+    import matplotlib.pyplot as plt
+
     plt.close(fig)
     print(f"wrote {out}/summary.json, trajectory-*.csv, tracking.png")
     return 0
+
+
+def _for_figure(r):
+    """``r`` with only what the figure draws, decimated to ``wmr.plots.MAX_POINTS`` samples."""
+    import dataclasses
+
+    from wmr.plots import MAX_POINTS
+
+    every = max(1, -(-len(r.t) // MAX_POINTS))
+    return dataclasses.replace(r, t=r.t[::every], q=r.q[::every], ref=r.ref[::every],
+                               q_hat=None, u=None, state=None, final=None)  # fmt: skip
 
 
 def _studies():

@@ -5,6 +5,7 @@ A reader never sees a half-written file, and an interrupted run leaves the previ
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
@@ -13,7 +14,8 @@ import tempfile
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
-__all__ = ["atomic_write_text", "atomic_write_bytes", "write_json", "write_csv", "save_figure"]
+__all__ = ["atomic_write_text", "atomic_write_bytes", "atomic_writer", "write_json", "write_csv",
+           "save_figure"]
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
@@ -32,6 +34,25 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+@contextlib.contextmanager
+def atomic_writer(path: str | Path):
+    """A text file handle whose content appears at ``path`` only when the block ends without an
+    exception (written to a temporary sibling, then renamed): for files written in pieces."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        os.chmod(tmp, 0o666 & ~_umask())
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            yield fh
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def _umask() -> int:

@@ -7,9 +7,10 @@ One step ``k`` (``t_k = k dt``, ``k = 0 .. N-1``; DESIGN §3.1), as phases:
    A; at ``k = 0`` the first estimate is the first measurement, ``P = R``);
 2. the controller's ``law`` computes ``u_k`` from ``q_hat_k`` and the reference at ``t_k``, and
    :func:`saturate` clips it to the actuator limits;
-3. :func:`actuate` -- the disturbance active at ``t_k`` is added and the plant is integrated over
-   ``[t_k, t_k + dt]`` with that input held (zero-order hold); the pose EKF (if used) predicts
-   with the commanded ``u_k`` (it does not know the disturbance);
+3. :func:`actuate` -- the command is delayed (``[plant] delay_steps``), the disturbance active at
+   ``t_k`` is added and the true robot (``wmr.plant``) is driven over ``[t_k, t_k + dt]`` with
+   that input held (zero-order hold); the pose EKF (if used) predicts with the commanded ``u_k``
+   and its nominal model (it knows neither the delay, the disturbance nor the true plant);
 4. :func:`score` -- the RMSE of eq. (64) is accumulated over the true poses (``wmr.metrics``) and
    the run is checked: a non-finite value or a position error beyond ``divergence_bound`` stops it.
 
@@ -35,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from wmr import controllers, metrics
+from wmr import controllers, metrics, plant
 from wmr._jit import njit
 from wmr.ekf import pose_predict, pose_update
 from wmr.kinematics import integrator_code, step
@@ -80,7 +81,9 @@ class Prepared:
     ``p, s, theta, P`` are the controller's parameters, small state, flat weight vector and its
     covariance (``wmr.controllers``); ``q``, ``q_hat`` (3,) the true pose and its estimate;
     ``Pq`` (3, 3) the pose filter's covariance with process and measurement noise ``Qp``, ``Rp``;
-    ``use_ekf`` whether the controller acts on the filtered pose; ``acc`` the RMSE accumulators
+    ``use_ekf`` whether the controller acts on the filtered pose; ``plant_*`` the true robot's
+    parameter table, change times, integer state, actual velocities and delay line
+    (``wmr.plant.arrays``); ``acc`` the RMSE accumulators
     (``wmr.metrics``); ``status = (step, cause)`` once the run stopped (``(-1, 0)`` before).
     """
 
@@ -104,6 +107,11 @@ class Prepared:
     dist_v: np.ndarray
     dist_w: np.ndarray
     integrator: int
+    plant_table: np.ndarray
+    plant_at: np.ndarray
+    plant_ints: np.ndarray
+    plant_vel: np.ndarray
+    plant_buffer: np.ndarray
     acc: np.ndarray
     status: np.ndarray
     rng_noise: np.random.Generator
@@ -156,6 +164,7 @@ def prepare(scenario: Scenario, controller: str, seed: int | None = None, settin
     std = np.array(scenario.noise.pose_std)
     Qp, Rp = scenario.estimator.matrices(scenario.noise)
     d = scenario.disturbances
+    table, at, ints, vel, buffer = plant.arrays(scenario.plant, scenario.dt)
     return Prepared(
         scenario=scenario, controller=ctrl, settings=settings,
         seed=int(seed) if np.isscalar(seed) else -1,
@@ -167,6 +176,7 @@ def prepare(scenario: Scenario, controller: str, seed: int | None = None, settin
         dist_v=np.array([x.velocity[0] for x in d], dtype=float),
         dist_w=np.array([x.velocity[1] for x in d], dtype=float),
         integrator=integrator_code(scenario.integrator),
+        plant_table=table, plant_at=at, plant_ints=ints, plant_vel=vel, plant_buffer=buffer,
         acc=np.zeros(metrics.N_ACC), status=np.array([-1, 0], dtype=np.int64),
         rng_noise=np.random.default_rng(noise_ss),
     )  # fmt: skip
@@ -204,21 +214,27 @@ def saturate(u, v_max, w_max):
 
 @njit(inline="always")
 def actuate(k, dt, u, ua, q, q_hat, Pq, use_ekf, integrator, Qp,
-            dist_start, dist_stop, dist_v, dist_w):  # fmt: skip
+            dist_start, dist_stop, dist_v, dist_w,
+            ideal, plant_table, plant_at, plant_ints, plant_vel, plant_buffer):  # fmt: skip
     """Phase 3: apply the saturated (finite) command ``u``.
 
-    The disturbance of each window containing ``t_k`` is added (``ua``), the plant advances ``q``
-    over one period with ``ua`` held, and the pose filter predicts with ``u`` (it does not know
-    the disturbance).
+    The command is delayed (the one of step ``k - d`` comes out), the disturbance of each window
+    containing ``t_k`` is added (``ua``), the true robot advances ``q`` over one period with
+    ``ua`` held (``wmr.plant.apply``), and the pose filter predicts with ``u`` and the nominal
+    model (it knows neither the delay, the disturbance nor the true plant).
     """
     t = k * dt
     ua[0] = u[0]
     ua[1] = u[1]
+    plant.delayed(ua, plant_ints, plant_buffer)
     for d in range(dist_start.size):
         if dist_start[d] <= t < dist_stop[d]:
             ua[0] += dist_v[d]
             ua[1] += dist_w[d]
-    q[:] = step(q, ua, dt, integrator)
+    if ideal:  # the paper's plant: the scenario's integrator, as the nominal model
+        q[:] = step(q, ua, dt, integrator)
+    else:
+        plant.apply(k, dt, ua, q, plant_table, plant_at, plant_ints, plant_vel)
     if use_ekf:
         pose_predict(q_hat, Pq, u, dt, integrator, Qp)
 
@@ -244,6 +260,7 @@ def _advance_template(
     k0, k1, dt, integrator,
     q, q_hat, ref, noise, use_ekf, Pq, Qp, Rp,
     dist_start, dist_stop, dist_v, dist_w, v_max, w_max, bound,
+    plant_table, plant_at, plant_ints, plant_vel, plant_buffer,
     acc, t_tail, status, keep, q_log, qhat_log, u_log, s_log,
 ):  # fmt: skip
     """Advance the loop over steps ``k0 .. k1-1``; ``ref`` holds rows ``k0 .. k1``.
@@ -269,7 +286,8 @@ def _advance_template(
             status[1] = 1
             return
         actuate(k, dt, u, ua, q, q_hat, Pq, use_ekf, integrator, Qp,
-                dist_start, dist_stop, dist_v, dist_w)
+                dist_start, dist_stop, dist_v, dist_w,
+                IDEAL_PLANT, plant_table, plant_at, plant_ints, plant_vel, plant_buffer)  # noqa: F821
         if keep:
             q_log[k + 1, :] = q
         cause = score(k, dt, q, ref[i + 1], acc, t_tail, bound)
@@ -282,20 +300,25 @@ def _advance_template(
 _KERNELS: dict = {}
 
 
-def kernel(name: str, law):
-    """The loop of ``_advance_template`` compiled for one controller ``law`` (cached on disk).
+def kernel(name: str, law, ideal: bool = True):
+    """The loop of ``_advance_template`` compiled for one controller ``law`` and plant kind
+    (cached on disk).
 
-    Each controller gets its own copy of the template function with ``law`` bound as a global
-    and its own qualified name, so numba caches one kernel per controller (a jitted function
-    taking the law as a first-class argument cannot be cached reliably).
+    Each (controller, ideal plant or not) gets its own copy of the template function with
+    ``law`` and ``IDEAL_PLANT`` bound as globals (compile-time constants: the ideal plant's
+    kernel carries no branch of the true robot) and its own qualified name, so numba caches one
+    kernel each (a jitted function taking the law as a first-class argument cannot be cached
+    reliably).
     """
-    key = (name, law)
+    key = (name, law, bool(ideal))
     if key not in _KERNELS:
         template = _advance_template
-        fn = types.FunctionType(template.__code__, {**template.__globals__, "law": law},
+        fn = types.FunctionType(template.__code__,
+                                {**template.__globals__, "law": law, "IDEAL_PLANT": bool(ideal)},
                                 f"_advance_{name}", template.__defaults__,
                                 template.__closure__)  # fmt: skip
-        fn.__qualname__ = f"_advance_{name.replace('-', '_')}"
+        suffix = "" if ideal else "_plant"
+        fn.__qualname__ = f"_advance_{name.replace('-', '_')}{suffix}"
         fn.__module__ = template.__module__
         fn.__doc__ = template.__doc__
         _KERNELS[key] = njit(fn)
@@ -338,7 +361,7 @@ def run_kernel(run: Prepared, logs: Logs | None) -> None:
     keep = logs is not None
     if logs is None:
         logs = Logs.empty(0, len(run.controller.state_names), False)
-    advance = kernel(run.controller.name, run.controller.law)
+    advance = kernel(run.controller.name, run.controller.law, sc.plant.ideal)
     _start(run, logs if keep else None)
     for k0, k1, ref, noise in run.chunks():
         advance(
@@ -346,6 +369,7 @@ def run_kernel(run: Prepared, logs: Logs | None) -> None:
             ref, noise, run.use_ekf, run.Pq, run.Qp, run.Rp,
             run.dist_start, run.dist_stop, run.dist_v, run.dist_w,
             sc.limits.v_max, sc.limits.w_max, sc.divergence_bound,
+            run.plant_table, run.plant_at, run.plant_ints, run.plant_vel, run.plant_buffer,
             run.acc, metrics.TRANSIENT, run.status, keep, logs.q, logs.q_hat, logs.u, logs.state,
         )  # fmt: skip
         if keep:
@@ -394,7 +418,9 @@ def run_probed(run: Prepared, logs: Logs | None, probe) -> None:
                 run.status[:] = (k, 1)
                 return
             actuate(k, dt, u, ua, q, q_hat, Pq, run.use_ekf, run.integrator, run.Qp,
-                    run.dist_start, run.dist_stop, run.dist_v, run.dist_w)
+                    run.dist_start, run.dist_stop, run.dist_v, run.dist_w,
+                    run.scenario.plant.ideal, run.plant_table, run.plant_at, run.plant_ints,
+                    run.plant_vel, run.plant_buffer)  # fmt: skip
             if logs is not None:
                 logs.q[k + 1] = q
                 logs.ref[k + 1] = ref[i + 1]

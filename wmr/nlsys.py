@@ -153,6 +153,9 @@ def closed_loop(scenario: Scenario, controller: str, seed: int | None = None, *,
     """
     import control as ct
 
+    if not scenario.plant.ideal:
+        raise ValueError(f"{scenario.name}: the python-control loop models the ideal plant only "
+                         "(the true robot's state would live outside the nlsys state)")
     run = loop.prepare(scenario, controller, seed, settings)
     layout = Layout(n_s=run.s.size, n_theta=run.theta.size)
     system = ct.nlsys(update_function(run, layout), _output, dt=scenario.dt,
@@ -190,6 +193,7 @@ def update_function(run: loop.Prepared, layout: Layout):
     v_max, w_max = sc.limits.v_max, sc.limits.w_max
     use_ekf, Rp, Qp, integrator = run.use_ekf, run.Rp, run.Qp, run.integrator
     windows = (run.dist_start, run.dist_stop, run.dist_v, run.dist_w)
+    plant = (True, run.plant_table, run.plant_at, run.plant_ints, run.plant_vel, run.plant_buffer)
     u_cmd, u_applied, z = np.zeros(2), np.zeros(2), np.zeros(3)  # scratch, as in the kernel
 
     def update(t, x, u, params=None):
@@ -201,7 +205,8 @@ def update_function(run: loop.Prepared, layout: Layout):
         if not loop.saturate(u_cmd, v_max, w_max):
             x[:] = np.nan  # the kernel stops the run here
             return x
-        loop.actuate(k, dt, u_cmd, u_applied, q, q_hat, Pq, use_ekf, integrator, Qp, *windows)
+        loop.actuate(k, dt, u_cmd, u_applied, q, q_hat, Pq, use_ekf, integrator, Qp, *windows,
+                     *plant)
         return x
 
     return update

@@ -7,35 +7,20 @@ from collections.abc import Sequence
 import matplotlib.pyplot as plt
 import numpy as np
 
-from wmr.kinematics import rotation
+from wmr import controllers
 from wmr.metrics import wrap
 
-__all__ = ["COLORS", "LABELS", "robot_frame_errors", "tracking_figure"]
+__all__ = ["robot_frame_errors", "tracking_figure", "MAX_POINTS"]
 
-#: One colour per controller, the same in every figure.
-COLORS = {
-    "iapid-nn-dekf": "tab:blue",
-    "backstepping": "tab:orange",
-    "adaptive-nn": "tab:red",
-    "adaptive-pid": "tab:pink",
-    "pid": "tab:gray",
-}
-LABELS = {
-    "iapid-nn-dekf": "IAPID-NN-DEKF",
-    "backstepping": "BSC",
-    "adaptive-nn": "DA-NN",
-    "adaptive-pid": "APID",
-    "pid": "PID (fixed)",
-}
+#: Most points a figure draws per curve: longer runs are decimated (every k-th sample).
+MAX_POINTS = 20_000
 
 
 def robot_frame_errors(q: np.ndarray, ref: np.ndarray) -> np.ndarray:
     """Tracking errors ``(x_e, y_e, theta_e)`` of eq. (6), corrected rotation, shape (n, 3)."""
-    e = np.empty((len(q), 3))
-    for i in range(len(q)):
-        e[i] = rotation(q[i, 2]) @ (ref[i, :3] - q[i])
-    e[:, 2] = wrap(e[:, 2])
-    return e
+    c, s = np.cos(q[:, 2]), np.sin(q[:, 2])
+    dx, dy = ref[:, 0] - q[:, 0], ref[:, 1] - q[:, 1]
+    return np.column_stack((c * dx + s * dy, -s * dx + c * dy, wrap(ref[:, 2] - q[:, 2])))
 
 
 def tracking_figure(runs: Sequence, title: str = ""):
@@ -44,17 +29,19 @@ def tracking_figure(runs: Sequence, title: str = ""):
     grid = fig.add_gridspec(3, 2, width_ratios=(1.1, 1))
     ax_path = fig.add_subplot(grid[:, 0])
     ax_err = [fig.add_subplot(grid[i, 1]) for i in range(3)]
-    ref = runs[0].ref
+    every = max(1, -(-len(runs[0].t) // MAX_POINTS))
+    ref = runs[0].ref[::every]
     ax_path.plot(ref[:, 0], ref[:, 1], "k--", lw=1.5, label="reference")
     for r in runs:
-        color = COLORS.get(r.controller)
-        label = LABELS.get(r.controller, r.controller)
+        color = controllers.colour(r.controller)
+        label = controllers.label(r.controller)
         if r.diverged:
             label += f" (diverged at {r.diverged_at:.2f} s)"
-        ax_path.plot(r.q[:, 0], r.q[:, 1], color=color, lw=1.2, label=label)
-        e = robot_frame_errors(r.q, r.ref)
+        q = r.q[::every]
+        ax_path.plot(q[:, 0], q[:, 1], color=color, lw=1.2, label=label)
+        e = robot_frame_errors(q, r.ref[::every])
         for i in range(3):
-            ax_err[i].plot(r.t, e[:, i], color=color, lw=1.0)
+            ax_err[i].plot(r.t[::every], e[:, i], color=color, lw=1.0)
     ax_path.plot(*runs[0].q[0, :2], "ko", ms=5, label="start")
     ax_path.set(xlabel="x [m]", ylabel="y [m]", title=title or runs[0].scenario)
     span = max(np.ptp(r.q[:, :2]) if np.all(np.isfinite(r.q)) else np.inf for r in runs)

@@ -1,4 +1,4 @@
-"""Reference trajectories: lemniscate (Gerono), sinusoid and circle (DESIGN §3.1).
+"""Reference trajectories: lemniscate (Gerono), sinusoid, circle, waypoints (DESIGN §3.1, §3.4).
 
 Each reference is a planar path ``(x_r(t), y_r(t))`` with analytic first and second
 derivatives, from which (Kanayama 1990; errata E1)::
@@ -18,6 +18,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
+
+from wmr import waypoints
 
 __all__ = ["ReferenceKind", "KINDS", "path_derivatives", "sample", "ReferenceSampler"]
 
@@ -66,6 +68,14 @@ class ReferenceKind:
         second time derivatives at the times ``t`` (an array), each of the shape of ``t``.
     units : tuple of str
         The unit of each parameter, for the settings reference.
+    example : mapping
+        Valid parameters (for the contract tests and the documentation).
+    parse : callable, optional
+        ``parse(table, source) -> params`` for a kind whose parameters are not numbers (the
+        scenario's ``[reference]`` table and file name); default: each of ``params`` is a
+        finite number, those of ``positive`` > 0.
+    validate : callable, optional
+        ``validate(params, duration, dt)``: checks against the run (raises ``SettingError``).
     """
 
     name: str
@@ -73,6 +83,9 @@ class ReferenceKind:
     positive: tuple[str, ...]
     path: Callable
     units: tuple[str, ...]
+    example: Mapping
+    parse: Callable | None = None
+    validate: Callable | None = None
 
 
 #: The reference kinds, by name.
@@ -80,10 +93,15 @@ KINDS: dict[str, ReferenceKind] = {
     k.name: k
     for k in (
         ReferenceKind("lemniscate", ("size", "period"), ("size", "period"), _lemniscate,
-                      ("m", "s")),
+                      ("m", "s"), {"size": 2.0, "period": 40.0}),
         ReferenceKind("sinusoid", ("speed", "amplitude", "omega"), ("speed",), _sinusoid,
-                      ("m/s", "m", "rad/s")),
-        ReferenceKind("circle", ("radius", "period"), ("radius", "period"), _circle, ("m", "s")),
+                      ("m/s", "m", "rad/s"), {"speed": 0.5, "amplitude": 1.0, "omega": 0.5}),
+        ReferenceKind("circle", ("radius", "period"), ("radius", "period"), _circle, ("m", "s"),
+                      {"radius": 1.0, "period": 20.0}),
+        ReferenceKind("waypoints", ("file", "points"), (), waypoints.path, ("-", "s, m, m"),
+                      {"points": tuple((t, math.cos(t / 3.0), math.sin(t / 3.0))
+                                       for t in np.arange(-1.0, 12.0, 0.25).tolist())},
+                      parse=waypoints.parse, validate=waypoints.validate),
     )
 }  # fmt: skip
 

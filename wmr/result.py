@@ -111,6 +111,35 @@ class RunResult:
         raise KeyError(f"{self.controller} has no signal {name!r}; known: "
                        f"{', '.join(self.signal_names)}")  # fmt: skip
 
+    @property
+    def csv_header(self) -> tuple[str, ...]:
+        """Columns of :meth:`to_csv`."""
+        return ("t", "x", "y", "theta", "x_r", "y_r", "theta_r", "v_r", "w_r",
+                "x_hat", "y_hat", "theta_hat", "v", "w", *self.state_names)  # fmt: skip
+
+    def to_csv(self, path, rows_per_block: int = 10_000) -> None:
+        """Write the trajectory as CSV (:attr:`csv_header`; one row per instant ``t_0 .. t_n``,
+        the per-step columns empty on the last row), atomically and in blocks, so memory does
+        not grow with the run; floats in shortest round-trip form."""
+        from wmr.io import atomic_writer
+
+        if self.state is None:
+            raise ValueError("no trajectory to write (keep_trajectory=False)")
+        n = len(self.u)
+        with atomic_writer(path) as fh:
+            fh.write(",".join(self.csv_header) + "\n")
+            for k0 in range(0, len(self.t), rows_per_block):
+                k1 = min(k0 + rows_per_block, len(self.t))
+                m = max(min(k1, n), k0)  # rows k0 .. m-1 have a step after them
+                instant = np.column_stack((self.t[k0:k1], self.q[k0:k1], self.ref[k0:k1]))
+                step = np.column_stack((self.q_hat[k0:m], self.u[k0:m], self.state[k0:m]))
+                lines = [",".join(map(repr, row)) for row in instant.tolist()]
+                for i, row in enumerate(step.tolist()):
+                    lines[i] += "," + ",".join(map(repr, row))
+                for i in range(m - k0, k1 - k0):  # the last instant has no step after it
+                    lines[i] += "," * (5 + len(self.state_names))
+                fh.write("\n".join(lines) + "\n")
+
     def _block(self, names: tuple[str, ...], what: str) -> np.ndarray:
         missing = [n for n in names if n not in self.state_names]
         if missing:

@@ -95,7 +95,7 @@ def _table(cls: type, prefix: str, skip: tuple[str, ...] = ()) -> list[str]:
     hints = typing.get_type_hints(cls)
     lines = ["| key | type | default | unit | meaning |", "|---|---|---|---|---|"]
     for f in dataclasses.fields(cls):
-        if not f.init or f.name in skip:
+        if not f.init or f.name in skip or not f.metadata.get("toml", True):
             continue
         if f.name not in docs:
             raise ValueError(f"{cls.__module__}.{cls.__qualname__}.{f.name} is not documented "
@@ -114,7 +114,7 @@ def _references() -> list[str]:
     for kind in references.KINDS.values():
         path = " ".join(inspect.cleandoc(kind.path.__doc__ or "").split())
         for i, (p, u) in enumerate(zip(kind.params, kind.units, strict=True)):
-            rule = "> 0" if p in kind.positive else "finite"
+            rule = "> 0" if p in kind.positive else ("see DESIGN §3.4" if kind.parse else "finite")
             lines.append(f"| `{kind.name}` | `reference.{p}` | {u} | {rule} | "
                          f"{_cell(path) if i == 0 else ''} |")
     return lines
@@ -134,7 +134,7 @@ def markdown() -> str:
         "## Scenario (top level)",
         "",
         *_table(scn.Scenario, "", skip=("reference", "noise", "disturbances", "limits",
-                                        "estimator", "controllers", "source")),  # fmt: skip
+                                        "estimator", "plant", "controllers", "source")),
         "",
         "## `[reference]`",
         "",
@@ -159,6 +159,24 @@ def markdown() -> str:
         "## `[estimator]`",
         "",
         *_table(scn.Estimator, "estimator."),
+        "",
+        "## `[plant]`: the true robot (DESIGN §3.3)",
+        "",
+        "Absent, the plant is the ideal unicycle the controllers assume (the paper's).  "
+        "Controllers and the pose filter always keep the nominal model.",
+        "",
+        *_table(scn.Plant, "plant."),
+        "",
+        "## `[plant.dynamic]` (with `model = \"dynamic\"` only, and required then)",
+        "",
+        *_table(scn.PlantDynamic, "plant.dynamic."),
+        "",
+        "## `[[plant.change]]` (zero or more)",
+        "",
+        "`at` [s] (finite, 0 <= at < duration): from the first step with t_k >= at the other keys "
+        "of the table take their new values.  Changeable: "
+        + ", ".join(f"`{k}`" for k in scn.PLANT_CHANGEABLE) + ", each with the type and rule of "
+        "the same key above.",
         "",
     ]
     for name, ctrl in controllers.REGISTRY.items():

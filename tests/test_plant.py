@@ -1,0 +1,228 @@
+"""The true robot (wmr.plant, DESIGN §3.3): each effect against a closed form, the integration's
+order and accuracy, the ideal plant bit for bit, and the controllers' ignorance of the plant."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from numpy.testing import assert_allclose, assert_array_equal
+from scipy.integrate import solve_ivp
+
+from wmr import loop, plant
+from wmr import scenario as scn
+from wmr.kinematics import EXACT
+from wmr.sim import simulate
+
+DT = 0.01
+NONE = np.zeros(0)
+PAPER = Path(__file__).resolve().parents[1] / "paper"
+#: The exact closed forms are evaluated in a different order than the step: rounding only.
+EXACT_RTOL = 1e-12
+
+
+def drive(spec: scn.Plant, commands, q0=(0.0, 0.0, 0.0), dt=DT):
+    """Drive the plant ``spec`` with the command sequence through ``wmr.loop.actuate`` (no
+    disturbance, no pose filter); the poses ``q_0 .. q_n`` and the final actual velocities."""
+    table, at, ints, vel, buffer = plant.arrays(spec, dt)
+    q, u, ua = np.array(q0, dtype=float), np.zeros(2), np.zeros(2)
+    poses = [q.copy()]
+    for k, c in enumerate(commands):
+        u[:] = c
+        loop.actuate(k, dt, u, ua, q, np.zeros(3), np.eye(3), False, EXACT, np.eye(3),
+                     NONE, NONE, NONE, NONE, spec.ideal, table, at, ints, vel, buffer)
+        poses.append(q.copy())
+    return np.array(poses), vel
+
+
+def test_input_gain_on_a_straight_line():
+    """v_gain scales the distance travelled: x = v_gain v t, exactly (the crab arc with w = 0)."""
+    n = 500
+    q, _ = drive(scn.Plant(v_gain=0.8), [(0.5, 0.0)] * n)
+    t = np.arange(n + 1) * DT
+    assert_allclose(q[:, 0], 0.8 * 0.5 * t, rtol=EXACT_RTOL, atol=1e-15)
+    assert np.all(q[:, 1:] == 0.0)
+
+
+@pytest.mark.parametrize(("spec", "command", "radius"), [
+    (scn.Plant(w_from_v=0.5), (0.4, 0.0), 0.4 / 0.2),  # applied w = 0.5 * 0.4
+    (scn.Plant(v_from_w=0.1), (0.0, 1.0), 0.1 / 1.0),  # applied v = 0.1 * 1
+    (scn.Plant(v_gain=1.1, w_gain=0.9), (0.5, 0.5), 0.55 / 0.45),
+], ids=["w_from_v", "v_from_w", "both-gains"])  # fmt: skip
+def test_coupling_turns_a_straight_command_into_a_circle(spec, command, radius):
+    """A constant applied (v, w) is a circle of radius v/w about (0, R) from the origin."""
+    q, _ = drive(spec, [command] * 700)
+    assert_allclose(np.hypot(q[:, 0], q[:, 1] - radius), radius, rtol=EXACT_RTOL)
+
+
+def test_lag_step_response_is_the_first_order_closed_form():
+    """From rest, v(t) = a (1 - e^{-t/tau}) and theta(t) = a_w (t - tau (1 - e^{-t/tau}))."""
+    tau, a_v, a_w, n = 0.1, 1.0, 0.5, 60
+    spec = scn.Plant(actuator_tau=tau)
+    for k in (1, 7, n):
+        q, vel = drive(spec, [(a_v, a_w)] * k)
+        t = k * DT
+        assert_allclose(vel, [a_v * -math.expm1(-t / tau), a_w * -math.expm1(-t / tau)],
+                        rtol=EXACT_RTOL)  # fmt: skip
+        assert_allclose(q[-1, 2], a_w * (t + tau * math.expm1(-t / tau)), rtol=EXACT_RTOL)
+    q, _ = drive(spec, [(a_v, 0.0)] * n)  # straight: x = integral of v
+    t = n * DT
+    assert_allclose(q[-1, 0], a_v * (t + tau * math.expm1(-t / tau)), rtol=1e-10)
+
+
+def test_delay_shifts_the_applied_input_sequence():
+    """With d steps of delay the plant sees u_{k-d} (zeros first): the same poses as the
+    undelayed plant fed the shifted sequence, bit for bit."""
+    rng = np.random.default_rng(3)
+    commands = rng.uniform(-1.0, 1.0, (50, 2))
+    base = scn.Plant(v_gain=1.05, actuator_tau=0.05)
+    delayed, _ = drive(dataclasses.replace(base, delay_steps=3), commands)
+    shifted = np.vstack((np.zeros((3, 2)), commands[:-3]))
+    reference, _ = drive(base, shifted)
+    assert_array_equal(delayed, reference)
+
+
+def test_slip_drifts_on_a_circle_of_the_body_velocity():
+    """With v_s = slip v w and constant (v, w), the body moves on a circle about its
+    instantaneous centre (-v_s/w, v/w) (robot frame) with radius sqrt(v^2 + v_s^2)/|w|, and its
+    velocity leads the heading by atan2(v_s, v)."""
+    slip, v, w = 0.2, 0.5, 0.5
+    vs = slip * v * w
+    q, _ = drive(scn.Plant(slip=slip), [(v, w)] * 800, q0=(1.0, 2.0, 0.3))
+    c, s = math.cos(0.3), math.sin(0.3)
+    centre = np.array([1.0, 2.0]) + np.array([[c, -s], [s, c]]) @ [-vs / w, v / w]
+    assert_allclose(np.hypot(*(q[:, :2] - centre).T), math.hypot(v, vs) / w, rtol=EXACT_RTOL)
+    step = q[401, :2] - q[400, :2]
+    drift = math.atan2(step[1], step[0]) - (q[400, 2] + q[401, 2]) / 2
+    assert_allclose(drift, math.atan2(vs, v), rtol=1e-9)
+
+
+def test_dynamic_model_steady_state_and_time_constant():
+    """m v' = m_hat bw (a - v) - f v: v -> bw m_hat a / (bw m_hat + f) with time constant
+    m / (bw m_hat + f) (and the same for w with the inertia)."""
+    d = scn.PlantDynamic(mass=10.0, inertia=0.6, friction=(2.0, 0.1), nominal_mass=8.0,
+                         nominal_inertia=0.5, bandwidth=(20.0, 15.0))  # fmt: skip
+    spec = scn.Plant(model="dynamic", dynamic=d)
+    a_v, a_w, n = 1.0, 0.4, 40
+    _, vel = drive(spec, [(a_v, a_w)] * n)
+    t = n * DT
+    g_v, g_w = 8.0 * 20.0, 0.5 * 15.0
+    ss = np.array([g_v * a_v / (g_v + 2.0), g_w * a_w / (g_w + 0.1)])
+    tau = np.array([10.0 / (g_v + 2.0), 0.6 / (g_w + 0.1)])
+    assert_allclose(vel, ss * -np.expm1(-t / tau), rtol=EXACT_RTOL)
+    assert_allclose(plant.time_constants(spec.row(), plant.DYNAMIC), tau, rtol=EXACT_RTOL)
+
+
+def test_a_change_applies_from_the_first_step_with_t_k_at_or_after_at():
+    """v_gain 1 -> 0.5 at 0.105 s: steps 0..10 (t_k <= 0.10) move 0.01, steps from 11 on 0.005."""
+    spec = scn.Plant(changes=(scn.PlantChange(0.105, {"v_gain": 0.5}),))
+    q, _ = drive(spec, [(1.0, 0.0)] * 20)
+    dx = np.diff(q[:, 0])
+    assert_allclose(dx[:11], DT, rtol=EXACT_RTOL)
+    assert_allclose(dx[11:], 0.5 * DT, rtol=EXACT_RTOL)
+    exact = scn.Plant(changes=(scn.PlantChange(0.1, {"v_gain": 0.5}),))  # t_10 = 10 * 0.01
+    dx = np.diff(drive(exact, [(1.0, 0.0)] * 20)[0][:, 0])
+    assert np.sum(np.isclose(dx, DT)) == 10  # k * dt >= at at k = 10 (0.1 == 10 * 0.01)
+
+
+def _reference_step(spec, q0, vel0, a, dt):
+    """One step of the 5-state ODE by scipy's DOP853 at tolerance 1e-13 (the oracle)."""
+    row = spec.row()
+    model = plant.DYNAMIC if spec.model == "dynamic" else plant.KINEMATIC
+    tv, tau_v, tw, tau_w = plant.channels(np.array(row), model, *a)
+
+    def f(t, x):
+        vs = row[plant.SLIP] * x[3] * x[4]
+        c, s = math.cos(x[2]), math.sin(x[2])
+        return [x[3] * c - vs * s, x[3] * s + vs * c, x[4], (tv - x[3]) / tau_v,
+                (tw - x[4]) / tau_w]
+
+    sol = solve_ivp(f, (0.0, dt), [*q0, *vel0], method="DOP853", rtol=1e-13, atol=1e-15)
+    return sol.y[:, -1]
+
+
+def test_lagged_step_is_of_order_six():
+    """One step against a tight ODE solution: the local error falls as h^7 (GL3 quadrature on
+    exact channels), so halving h divides it by ~128; and it is tiny at the scenario's dt."""
+    spec = scn.Plant(actuator_tau=0.05, slip=0.3)
+    q0, vel0, a = np.array([0.1, -0.2, 0.7]), np.array([0.3, -0.8]), (1.2, 1.5)
+    errors = []
+    for h in (0.04, 0.02, 0.01):
+        q, vel = q0.copy(), vel0.copy()
+        plant.lagged_step(np.array(spec.row()), plant.KINEMATIC, q, vel, *a, h, 1)
+        errors.append(np.max(np.abs(np.concatenate((q, vel)) - _reference_step(spec, q0, vel0,
+                                                                                a, h))))
+    assert errors[0] / errors[1] > 64.0 and errors[1] / errors[2] > 64.0, errors
+    assert errors[2] < 1e-10, errors  # h = dt of the paper's scenarios
+
+
+@pytest.fixture(scope="module")
+def lemniscate():
+    return scn.load(scn.builtin("lemniscate"))
+
+
+@pytest.mark.parametrize("controller", ["backstepping", "iapid-nn-dekf"])
+@pytest.mark.parametrize("section", [
+    "[plant]\nactuator_tau = 0.1\ndelay_steps = 2\nslip = 0.1\n",
+    "[plant]\nmodel = 'dynamic'\n[plant.dynamic]\nmass = 10.0\n[[plant.change]]\nat = 20.0\n"
+    "mass = 15.0\ninertia = 0.75\n",
+], ids=["lag-delay-slip", "dynamic-payload"])  # fmt: skip
+def test_rmse_is_converged_under_tenfold_refinement(controller, section, lemniscate, monkeypatch):
+    """DESIGN §3.3: refining the plant's integration 10x moves a run's RMSE by < 1e-6 (relative)."""
+    sc = scn.loads(Path(scn.builtin("lemniscate")).read_text() + section)
+    coarse = simulate(sc, controller, 0, keep_trajectory=False).rmse
+    monkeypatch.setattr(plant, "SUBSTEP_FRACTION", plant.SUBSTEP_FRACTION / 10)
+    assert plant.substeps(np.array(sc.plant.row()), plant.KINEMATIC, sc.dt) >= 1
+    fine = simulate(sc, controller, 0, keep_trajectory=False).rmse
+    for key in ("x", "y", "theta", "position"):
+        assert abs(coarse[key] - fine[key]) < 1e-6 * fine[key], (key, coarse, fine)
+
+
+def test_ideal_plant_is_bit_identical_to_the_committed_results(lemniscate):
+    """An explicit ideal [plant] changes nothing, and runs equal paper/results/rmse.csv to the
+    last bit (the file was made before the plant existed)."""
+    rows = {}
+    with open(PAPER / "results" / "rmse.csv") as fh:
+        for r in csv.DictReader(fh):
+            if r["variant"] == "default" and r["seed"] in ("0", "3"):
+                rows[(r["scenario"], r["controller"], int(r["seed"]))] = r
+    for name in scn.PAPER_SCENARIOS:
+        text = Path(scn.builtin(name)).read_text() + "\n[plant]\nv_gain = 1.0\nslip = 0.0\n"
+        sc = scn.loads(text)
+        assert sc.plant.ideal
+        for (scenario, controller, seed), r in rows.items():
+            if scenario != name:
+                continue
+            got = simulate(sc, controller, seed, keep_trajectory=False).rmse
+            for axis in ("x", "y", "theta", "position"):
+                assert repr(got[axis]) == r[f"rmse_{axis}"], (name, controller, seed, axis)
+
+
+@pytest.mark.parametrize("controller", ["iapid-nn-dekf", "adaptive-nn", "adaptive-pid",
+                                        "backstepping"])  # fmt: skip
+def test_no_controller_sees_the_true_plant(controller, lemniscate):
+    """Changing only the plant leaves the controller's packed model and state, the pose filter
+    and the first command unchanged: nothing but the plant reads [plant]."""
+    d = scn.PlantDynamic(mass=13.0, inertia=0.9, nominal_mass=7.0)
+    true = dataclasses.replace(lemniscate, plant=scn.Plant(
+        model="dynamic", v_gain=0.7, w_from_v=0.3, delay_steps=2, slip=0.2, dynamic=d))
+    a, b = loop.prepare(lemniscate, controller, 0), loop.prepare(true, controller, 0)
+    for x, y in ((a.s, b.s), (a.theta, b.theta), (a.P, b.P), (a.Qp, b.Qp), (a.Rp, b.Rp)):
+        assert_array_equal(x, y)
+    pa = a.p._asdict().values() if hasattr(a.p, "_asdict") else [a.p]
+    pb = b.p._asdict().values() if hasattr(b.p, "_asdict") else [b.p]
+    for x, y in zip(pa, pb, strict=True):
+        assert_array_equal(x, y)
+    ra, rb = simulate(lemniscate, controller, 0), simulate(true, controller, 0)
+    assert_array_equal(ra.u[0], rb.u[0]) and assert_array_equal(ra.q_hat[0], rb.q_hat[0])
+    assert not np.array_equal(ra.q[5], rb.q[5])  # while the robots themselves differ
+
+
+def test_with_lag_the_robot_starts_at_rest():
+    q, vel = drive(scn.Plant(actuator_tau=0.2), [(1.0, 0.0)])
+    assert 0.0 < q[1, 0] < 0.1 * DT  # well below the commanded 1 m/s x dt
+    assert 0.0 < vel[0] < 0.1
