@@ -68,6 +68,7 @@ TARGETS = {
     "paper_runs_one_seed_s_max": 1.0,
     "monte_carlo_1000_s_max": 30.0,
     "quick_total_s_max": 120.0,
+    "plant_ratio_max": 1.3,  # step with lag, delay and slip / ideal step (issue 12)
 }
 #: The targets :func:`check` asserts (ratios and correctness); absolute wall-time misses are
 #: recorded only.
@@ -111,6 +112,7 @@ def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
                                for k, v in rec["us_per_step"].items()}  # fmt: skip
     rss = {"after_warmup_and_step_timings": _bench.rss_mb()}
     rec["run_overhead_ms"] = _run_overhead(lem, repeats)
+    rec["plant"] = _plant_costs(lem, repeats)
     rec["vs_weights"] = _vs_weights(lem, (5, 10, 20) if quick else (5, 10, 20, 40), quick)
     rec.update(_paper_runs(repeats))
     rec.update(_monte_carlo(lem, workers, quick))
@@ -234,6 +236,30 @@ def _run_overhead(lem, repeats: int) -> float:
         sim.simulate(one, SUBJECT, 0, keep_trajectory=False)
         ov.append(per_step(t0))
     return _best(ov) / 1e3
+
+
+#: The non-ideal plant timed against the ideal one (issue 12): lag, delay and slip together.
+PLANT = {"actuator_tau": 0.1, "delay_steps": 2, "slip": 0.1}
+
+
+def _plant_costs(lem, repeats: int) -> dict:
+    """Per-step CPU cost of backstepping and iapid-nn-dekf on the ideal plant and on a plant with
+    lag, delay and slip (:data:`PLANT`), interleaved; ratio = median of the paired ratios."""
+    true = dataclasses.replace(lem, plant=scn.Plant(**PLANT))
+    out = {"plant": PLANT}
+    for name in ("backstepping", SUBJECT):
+        sim.simulate(true, name, 0, keep_trajectory=False)  # compile the plant's kernel
+        ideal, lagged = [], []
+        for _ in range(repeats):
+            for sc, samples in ((lem, ideal), (true, lagged)):
+                t0 = clocks()
+                r = sim.simulate(sc, name, 0, keep_trajectory=False)
+                samples.append(per_step(t0, steps_done(r)))
+        out[name] = {"ideal_cpu_us_per_step": _best(ideal, 1),
+                     "plant_cpu_us_per_step": _best(lagged, 1),
+                     "ratio": float(np.median([b[1] / a[1] for a, b in zip(ideal, lagged,
+                                                                           strict=True)]))}
+    return out
 
 
 def _vs_weights(lem, hiddens, quick: bool) -> list[dict]:
@@ -363,6 +389,8 @@ def targets_met(rec: dict) -> dict:
         "python_control_same_computation": all(v["max_abs_q_difference"] <= SAME_TOL
                                                for v in rec["python_control"].values()),
         "floor_correct": rec["floor_check_max_rel_error"] <= SAME_TOL,
+        "plant_overhead": None if "plant" not in rec else all(
+            rec["plant"][n]["ratio"] <= t["plant_ratio_max"] for n in ("backstepping", SUBJECT)),
     }  # fmt: skip
     if rec["quick"]:
         met["quick_under_2_min"] = rec["elapsed_s"] < t["quick_total_s_max"]
@@ -410,6 +438,10 @@ def notes(rec: dict) -> list[str]:
         "peak_rss_children_mb is the largest child's high-water mark, which counts the pages it "
         "shares with the parent after fork: it is not memory added to the parent's.",
         "Absolute wall times depend on other load on the shared machine (machine.load_average_*).",
+        "plant: the same runs on the ideal plant (its own kernel, the scenario's integrator) and "
+        f"on a true robot with {', '.join(f'{k} = {v}' for k, v in PLANT.items())} (wmr.plant: "
+        "delay line, exact first-order channels, Gauss-Legendre position), interleaved; ratio = "
+        "median of the paired CPU-time ratios.",
         "The loop is compiled once per controller (wmr.loop.kernel) and cached on disk: "
         "advance_cache counts the loads from the cache (hits) and compilations (misses) of this "
         "process.",
@@ -435,7 +467,11 @@ def _targets_table(rec: dict) -> list[str]:
         f"| {'—' if mc is None else f'{mc:.2f}'} "
         f"| <= {t['monte_carlo_1000_s_max']:g} | {ok('monte_carlo_1000')} |",
         f"| parallel rows == serial rows | {rec['parallel_equals_serial']} | true "
-        f"| {ok('parallel_equals_serial')} |", "",
+        f"| {ok('parallel_equals_serial')} |",
+        *(f"| {name} step, plant with lag + delay + slip / ideal plant "
+          f"| {rec['plant'][name]['ratio']:.2f}x | <= {t['plant_ratio_max']:g}x "
+          f"| {ok('plant_overhead')} |" for name in ("backstepping", SUBJECT) if "plant" in rec),
+        "",
     ]  # fmt: skip
 
 

@@ -32,6 +32,8 @@ __all__ = ["STEM", "TITLE", "BAD_SCENARIOS", "BAD_OPTIONS", "bad_inputs", "long_
 
 STEM = "reliability"
 TITLE = "Reliability"
+#: Peak resident memory [MB] allowed to ``wmr run`` of one hour with trajectories (issue 12).
+RUN_MEMORY_MB = 500.0
 
 _VALID = """name = "r"
 duration = 2.0
@@ -68,6 +70,20 @@ BAD_SCENARIOS: list[tuple[str, str]] = [
     ("non-positive gain", _VALID + "[controllers.backstepping]\ngains = [2.0, -1.0, 4.0]\n"),
     ("unknown integrator", _VALID.replace('name = "r"', 'name = "r"\nintegrator = "rk45"')),
     ("not UTF-8", "\udcff"),
+    ("unknown plant key", _VALID + "[plant]\nv_gian = 0.8\n"),
+    ("negative actuator lag", _VALID + "[plant]\nactuator_tau = -0.1\n"),
+    ("fractional delay", _VALID + "[plant]\ndelay_steps = 1.5\n"),
+    ("dynamic model without [plant.dynamic]", _VALID + '[plant]\nmodel = "dynamic"\n'),
+    ("non-positive mass", _VALID + '[plant]\nmodel = "dynamic"\n[plant.dynamic]\nmass = 0.0\n'),
+    ("plant change after the run", _VALID + "[plant]\n[[plant.change]]\nat = 9.0\nslip = 0.1\n"),
+    ("plant change of a fixed key",
+     _VALID + "[plant]\n[[plant.change]]\nat = 1.0\ndelay_steps = 3\n"),
+    ("too few waypoints", _VALID.replace(
+        'kind = "sinusoid"\nspeed = 0.5\namplitude = 1.0\nomega = 0.5',
+        'kind = "waypoints"\npoints = [[0.0, 0.0, 0.0], [3.0, 1.0, 0.0]]')),
+    ("missing waypoint file", _VALID.replace(
+        'kind = "sinusoid"\nspeed = 0.5\namplitude = 1.0\nomega = 0.5',
+        'kind = "waypoints"\nfile = "nowhere.csv"')),
 ]  # fmt: skip
 #: Bad command-line options: (what is wrong, argv after the scenario path is substituted).
 BAD_OPTIONS: list[tuple[str, list[str]]] = [
@@ -145,6 +161,64 @@ def long_runs(hours: float = 1.0) -> dict:
     return out
 
 
+#: Runs ``wmr run`` and then reports the process's own peak resident memory: ``VmHWM`` of
+#: ``/proc/self/status`` (the high-water mark of this program's memory since its exec; the
+#: ``ru_maxrss`` a parent sees after ``wait`` also counts the parent's memory at the fork).
+_MEASURED_RUN = """
+import resource, sys
+from wmr import cli
+code = cli.main(sys.argv[1:])
+try:
+    kb = next(int(line.split()[1]) for line in open("/proc/self/status")
+              if line.startswith("VmHWM:"))
+except OSError:
+    kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+print(f"peak-kb {kb}", file=sys.stderr)
+sys.exit(code)
+"""
+
+
+def run_memory(hours: float = 1.0) -> dict:
+    """``wmr run`` of every controller over ``hours`` of the lemniscate *with* trajectories (CSV
+    and figure), in a child process: its peak resident memory, wall time and what it wrote."""
+    import subprocess
+
+    sc = scn.load(scn.builtin("lemniscate"))
+    text = Path(scn.builtin("lemniscate")).read_text().replace(
+        f"duration = {sc.duration}", f"duration = {hours * 3600.0}")  # fmt: skip
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "long.toml"
+        path.write_text(text)
+        argv = [sys.executable, "-c", _MEASURED_RUN, "run", str(path), "--controller", "all",
+                "--out", str(Path(tmp) / "out")]  # fmt: skip
+        t0 = time.perf_counter()
+        done = subprocess.run(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        elapsed = time.perf_counter() - t0
+        lines = done.stderr.strip().splitlines()
+        peak = next((int(x.split()[1]) for x in lines if x.startswith("peak-kb ")), -1024)
+        files = sorted(p.name for p in (Path(tmp) / "out").glob("*"))
+        size = sum(p.stat().st_size for p in (Path(tmp) / "out").glob("*"))
+    return {"hours": hours, "steps": round(hours * 3600.0 / sc.dt),
+            "controllers": len(controllers.NAMES), "exit_code": done.returncode,
+            "stderr": "\n".join(x for x in lines if not x.startswith("peak-kb "))[:200],
+            "seconds": round(elapsed, 1), "peak_rss_mb": round(peak / 1024, 1), "files": files,
+            "written_mb": round(size / 2**20, 1)}  # fmt: skip
+
+
+def shipped_scenarios() -> dict:
+    """Every shipped scenario with every controller (seed 0): finite, or its divergence reported
+    with time and cause."""
+    out = {}
+    for name in scn.shipped():
+        sc = scn.load(scn.builtin(name))
+        out[name] = {"plant": sc.plant.describe()}
+        for c in controllers.NAMES:
+            r = simulate(sc, c, seed=0, keep_trajectory=False)
+            out[name][c] = {"rmse_position": r.rmse["position"], "diverged": r.diverged,
+                            "diverged_at": r.diverged_at, "cause": r.cause}  # fmt: skip
+    return out
+
+
 def seam_crossings(turns: int = 50) -> dict:
     """Circles of many turns: the heading crosses ±pi twice a turn; errors must stay small."""
     text = (f'name = "seam"\nduration = {10.0 * turns}\ndt = 0.01\n'
@@ -213,6 +287,8 @@ def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
     hour and 6 turns of the circle instead of 50.  The determinism check always compares the
     serial path with 2 workers (``workers`` is not used)."""
     record = {"bad_inputs": bad_inputs(), "long_runs": long_runs(0.05 if quick else 1.0),
+              "run_memory": run_memory(0.05 if quick else 1.0),
+              "shipped_scenarios": shipped_scenarios(),
               "seam": seam_crossings(6 if quick else 50), "faults": fault_injection(),
               "determinism": determinism()}  # fmt: skip
     bi = record["bad_inputs"]
@@ -224,6 +300,11 @@ def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
                                   if isinstance(v, dict)),
         "serial_equals_parallel": record["determinism"]["serial_equals_parallel"],
         "saturation_respected": all(record["faults"]["saturation_respected"].values()),
+        "shipped_runs_accounted_for": all(
+            (v["diverged"] and v["diverged_at"] is not None and v["cause"])
+            or (not v["diverged"] and math.isfinite(v["rmse_position"]))
+            for sc in record["shipped_scenarios"].values() for k, v in sc.items()
+            if k != "plant"),
     }  # fmt: skip
     common.write_record(out, STEM, record)
     common.write_table(out, STEM, table(record))
@@ -241,6 +322,10 @@ def check(record: dict) -> None:
     assert s["long_runs_finite"] and s["serial_equals_parallel"] and s["saturation_respected"], s
     for name, v in record["long_runs"].items():  # memory does not grow with run length
         assert v["peak_traced_mb_long"] < 1.5 * v["peak_traced_mb_short"] + 1.0, (name, v)
+    m = record["run_memory"]
+    assert m["exit_code"] == 0 and len(m["files"]) == m["controllers"] + 2, m
+    assert m["peak_rss_mb"] < RUN_MEMORY_MB, m  # issue 12: one hour with trajectories
+    assert s["shipped_runs_accounted_for"], record["shipped_scenarios"]
 
 
 # --- Rendering: the report's section, from the record ------------------------------------------
@@ -298,6 +383,17 @@ def render(record: dict) -> str:
                              if v["diverged"] else "did not diverge")
                           for k, v in f["huge_noise"].items() if k != "control run")
               + "; the next run of the same study completed normally.", ""]  # fmt: skip
+    m = record["run_memory"]
+    notes.append(f"`wmr run` of all {m['controllers']} controllers over {m['hours']:g} simulated "
+                 f"hour(s) ({m['steps']} steps each) with trajectories (CSV, figure): peak "
+                 f"resident memory {fmt(m['peak_rss_mb'], 1)} MB (limit {RUN_MEMORY_MB:g} MB), "
+                 f"{fmt(m['seconds'], 1)} s, {fmt(m['written_mb'], 1)} MB written.")
+    shipped = record["shipped_scenarios"]
+    diverged = [f"{sc} / {controllers.label(c)} at {fmt(v['diverged_at'], 2)} s ({v['cause']})"
+                for sc, runs in shipped.items() for c, v in runs.items()
+                if c != "plant" and v["diverged"]]  # fmt: skip
+    notes.append(f"Every shipped scenario ({len(shipped)}) with every controller: "
+                 + ("no run diverged." if not diverged else "diverged: " + "; ".join(diverged)))
     return common.section(TITLE, notes, table(record)) + "\n" + "\n".join(lines)
 
 

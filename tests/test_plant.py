@@ -15,11 +15,9 @@ from scipy.integrate import solve_ivp
 
 from wmr import loop, plant
 from wmr import scenario as scn
-from wmr.kinematics import EXACT
 from wmr.sim import simulate
 
 DT = 0.01
-NONE = np.zeros(0)
 PAPER = Path(__file__).resolve().parents[1] / "paper"
 #: The exact closed forms are evaluated in a different order than the step: rounding only.
 EXACT_RTOL = 1e-12
@@ -28,15 +26,17 @@ EXACT_RTOL = 1e-12
 def drive(spec: scn.Plant, commands, q0=(0.0, 0.0, 0.0), dt=DT):
     """Drive the plant ``spec`` with the command sequence through ``wmr.loop.actuate`` (no
     disturbance, no pose filter); the poses ``q_0 .. q_n`` and the final actual velocities."""
-    table, at, ints, vel, buffer = plant.arrays(spec, dt)
-    q, u, ua = np.array(q0, dtype=float), np.zeros(2), np.zeros(2)
+    sc = scn.from_dict({"name": "p", "duration": len(commands) * dt, "dt": dt,
+                        "initial_pose": list(q0), "reference": {"kind": "circle", "radius": 1.0,
+                                                                "period": 10.0}})  # fmt: skip
+    run = loop.prepare(dataclasses.replace(sc, plant=spec), "backstepping", 0)
+    q, u, ua = run.q, np.zeros(2), np.zeros(2)
     poses = [q.copy()]
     for k, c in enumerate(commands):
         u[:] = c
-        loop.actuate(k, dt, u, ua, q, np.zeros(3), np.eye(3), False, EXACT, np.eye(3),
-                     NONE, NONE, NONE, NONE, spec.ideal, table, at, ints, vel, buffer)
+        loop.actuate(run, k, u, ua, q, run.q_hat, run.Pq)
         poses.append(q.copy())
-    return np.array(poses), vel
+    return np.array(poses), run.plant_vel
 
 
 def test_input_gain_on_a_straight_line():

@@ -142,8 +142,10 @@ def _for_figure(r):
     from wmr.plots import MAX_POINTS
 
     every = max(1, -(-len(r.t) // MAX_POINTS))
-    return dataclasses.replace(r, t=r.t[::every], q=r.q[::every], ref=r.ref[::every],
-                               q_hat=None, u=None, state=None, final=None)  # fmt: skip
+    # copies, not views: a view would keep the whole trajectory alive
+    return dataclasses.replace(r, t=r.t[::every].copy(), q=r.q[::every].copy(),
+                               ref=r.ref[::every].copy(), q_hat=None, u=None, state=None,
+                               final=None)  # fmt: skip
 
 
 def _studies():

@@ -51,6 +51,7 @@ __all__ = [
     "seed_sequences",
     "sense",
     "saturate",
+    "disturb",
     "actuate",
     "score",
     "kernel",
@@ -81,7 +82,8 @@ class Prepared:
     ``p, s, theta, P`` are the controller's parameters, small state, flat weight vector and its
     covariance (``wmr.controllers``); ``q``, ``q_hat`` (3,) the true pose and its estimate;
     ``Pq`` (3, 3) the pose filter's covariance with process and measurement noise ``Qp``, ``Rp``;
-    ``use_ekf`` whether the controller acts on the filtered pose; ``plant_*`` the true robot's
+    ``use_ekf`` whether the controller acts on the filtered pose; ``disturbance`` the windows
+    ``(start, stop, dv, dw)``, one per row; ``plant_*`` the true robot's
     parameter table, change times, integer state, actual velocities and delay line
     (``wmr.plant.arrays``); ``acc`` the RMSE accumulators
     (``wmr.metrics``); ``status = (step, cause)`` once the run stopped (``(-1, 0)`` before).
@@ -102,10 +104,7 @@ class Prepared:
     Rp: np.ndarray
     use_ekf: bool
     std: np.ndarray
-    dist_start: np.ndarray
-    dist_stop: np.ndarray
-    dist_v: np.ndarray
-    dist_w: np.ndarray
+    disturbance: np.ndarray
     integrator: int
     plant_table: np.ndarray
     plant_at: np.ndarray
@@ -171,10 +170,8 @@ def prepare(scenario: Scenario, controller: str, seed: int | None = None, settin
         p=p, s=s, theta=theta, P=P,
         q=np.array(scenario.initial_pose, dtype=float), q_hat=np.zeros(3), Pq=Rp.copy(),
         Qp=Qp, Rp=Rp, use_ekf=scenario.estimator.filters(controller), std=std,
-        dist_start=np.array([x.start for x in d], dtype=float),
-        dist_stop=np.array([x.stop for x in d], dtype=float),
-        dist_v=np.array([x.velocity[0] for x in d], dtype=float),
-        dist_w=np.array([x.velocity[1] for x in d], dtype=float),
+        disturbance=np.array([(x.start, x.stop, *x.velocity) for x in d],
+                             dtype=float).reshape(-1, 4),
         integrator=integrator_code(scenario.integrator),
         plant_table=table, plant_at=at, plant_ints=ints, plant_vel=vel, plant_buffer=buffer,
         acc=np.zeros(metrics.N_ACC), status=np.array([-1, 0], dtype=np.int64),
@@ -213,30 +210,33 @@ def saturate(u, v_max, w_max):
 
 
 @njit(inline="always")
-def actuate(k, dt, u, ua, q, q_hat, Pq, use_ekf, integrator, Qp,
-            dist_start, dist_stop, dist_v, dist_w,
-            ideal, plant_table, plant_at, plant_ints, plant_vel, plant_buffer):  # fmt: skip
-    """Phase 3: apply the saturated (finite) command ``u``.
+def disturb(t, ua, disturbance):
+    """Phase 3a: add to ``ua`` the ``(dv, dw)`` of every disturbance window containing ``t``
+    (``disturbance`` rows ``(start, stop, dv, dw)``, active for ``start <= t < stop``)."""
+    for d in range(disturbance.shape[0]):
+        if disturbance[d, 0] <= t < disturbance[d, 1]:
+            ua[0] += disturbance[d, 2]
+            ua[1] += disturbance[d, 3]
 
-    The command is delayed (the one of step ``k - d`` comes out), the disturbance of each window
-    containing ``t_k`` is added (``ua``), the true robot advances ``q`` over one period with
-    ``ua`` held (``wmr.plant.apply``), and the pose filter predicts with ``u`` and the nominal
-    model (it knows neither the delay, the disturbance nor the true plant).
-    """
-    t = k * dt
-    ua[0] = u[0]
-    ua[1] = u[1]
-    plant.delayed(ua, plant_ints, plant_buffer)
-    for d in range(dist_start.size):
-        if dist_start[d] <= t < dist_stop[d]:
-            ua[0] += dist_v[d]
-            ua[1] += dist_w[d]
-    if ideal:  # the paper's plant: the scenario's integrator, as the nominal model
-        q[:] = step(q, ua, dt, integrator)
+
+def actuate(run: Prepared, k: int, u, ua, q, q_hat, Pq) -> None:
+    """Phase 3 from Python (the probed loop, ``wmr.nlsys``), as :func:`_advance_template` runs it:
+    the saturated command ``u`` is delayed (``wmr.plant.delayed``), disturbed (:func:`disturb`)
+    and drives the true robot over one period (``wmr.kinematics.step`` for the ideal plant,
+    ``wmr.plant.apply`` otherwise); the pose filter predicts with ``u`` and the nominal model
+    (it knows neither the delay, the disturbance nor the true plant)."""
+    dt = run.dt
+    ua[:] = u
+    ideal = run.scenario.plant.ideal
+    if not ideal:
+        plant.delayed(ua, run.plant_ints, run.plant_buffer)
+    disturb(k * dt, ua, run.disturbance)
+    if ideal:
+        q[:] = step(q, ua, dt, run.integrator)
     else:
-        plant.apply(k, dt, ua, q, plant_table, plant_at, plant_ints, plant_vel)
-    if use_ekf:
-        pose_predict(q_hat, Pq, u, dt, integrator, Qp)
+        plant.apply(k, dt, ua, q, run.plant_table, run.plant_at, run.plant_ints, run.plant_vel)
+    if run.use_ekf:
+        pose_predict(q_hat, Pq, u, dt, run.integrator, run.Qp)
 
 
 @njit(inline="always")
@@ -259,15 +259,18 @@ def _advance_template(
     p, s, theta, P,
     k0, k1, dt, integrator,
     q, q_hat, ref, noise, use_ekf, Pq, Qp, Rp,
-    dist_start, dist_stop, dist_v, dist_w, v_max, w_max, bound,
+    disturbance, v_max, w_max, bound,
     plant_table, plant_at, plant_ints, plant_vel, plant_buffer,
     acc, t_tail, status, keep, q_log, qhat_log, u_log, s_log,
 ):  # fmt: skip
     """Advance the loop over steps ``k0 .. k1-1``; ``ref`` holds rows ``k0 .. k1``.
 
-    Compiled once per controller law by :func:`kernel` (``law`` is a global of the copy).
-    Mutates ``q``, ``q_hat``, the controller state ``s, theta, P``, the accumulators ``acc`` and,
-    when ``keep``, the logs.  On divergence writes ``status = (step, cause)`` and returns early.
+    Compiled once per controller law and plant kind by :func:`kernel` (``law`` and
+    ``IDEAL_PLANT`` are globals of the copy: the ideal plant's kernel has no branch of the true
+    robot).  Mutates ``q``, ``q_hat``, the controller state ``s, theta, P``, the accumulators
+    ``acc`` and, when ``keep``, the logs.  On divergence writes ``status = (step, cause)`` and
+    returns early.  Phase 3 is :func:`actuate`'s sequence, spelt out here so that numba
+    compiles it inline.
     """
     u = np.zeros(2)
     ua = np.zeros(2)
@@ -285,9 +288,17 @@ def _advance_template(
             status[0] = k
             status[1] = 1
             return
-        actuate(k, dt, u, ua, q, q_hat, Pq, use_ekf, integrator, Qp,
-                dist_start, dist_stop, dist_v, dist_w,
-                IDEAL_PLANT, plant_table, plant_at, plant_ints, plant_vel, plant_buffer)  # noqa: F821
+        ua[0] = u[0]
+        ua[1] = u[1]
+        if not IDEAL_PLANT:  # noqa: F821 - bound per kernel
+            plant.delayed(ua, plant_ints, plant_buffer)
+        disturb(k * dt, ua, disturbance)
+        if IDEAL_PLANT:  # noqa: F821
+            q[:] = step(q, ua, dt, integrator)
+        else:
+            plant.apply(k, dt, ua, q, plant_table, plant_at, plant_ints, plant_vel)
+        if use_ekf:
+            pose_predict(q_hat, Pq, u, dt, integrator, Qp)
         if keep:
             q_log[k + 1, :] = q
         cause = score(k, dt, q, ref[i + 1], acc, t_tail, bound)
@@ -366,8 +377,7 @@ def run_kernel(run: Prepared, logs: Logs | None) -> None:
     for k0, k1, ref, noise in run.chunks():
         advance(
             run.p, run.s, run.theta, run.P, k0, k1, sc.dt, run.integrator, run.q, run.q_hat,
-            ref, noise, run.use_ekf, run.Pq, run.Qp, run.Rp,
-            run.dist_start, run.dist_stop, run.dist_v, run.dist_w,
+            ref, noise, run.use_ekf, run.Pq, run.Qp, run.Rp, run.disturbance,
             sc.limits.v_max, sc.limits.w_max, sc.divergence_bound,
             run.plant_table, run.plant_at, run.plant_ints, run.plant_vel, run.plant_buffer,
             run.acc, metrics.TRANSIENT, run.status, keep, logs.q, logs.q_hat, logs.u, logs.state,
@@ -417,10 +427,7 @@ def run_probed(run: Prepared, logs: Logs | None, probe) -> None:
             if not finite:
                 run.status[:] = (k, 1)
                 return
-            actuate(k, dt, u, ua, q, q_hat, Pq, run.use_ekf, run.integrator, run.Qp,
-                    run.dist_start, run.dist_stop, run.dist_v, run.dist_w,
-                    run.scenario.plant.ideal, run.plant_table, run.plant_at, run.plant_ints,
-                    run.plant_vel, run.plant_buffer)  # fmt: skip
+            actuate(run, k, u, ua, q, q_hat, Pq)
             if logs is not None:
                 logs.q[k + 1] = q
                 logs.ref[k + 1] = ref[i + 1]

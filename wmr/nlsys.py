@@ -191,9 +191,7 @@ def update_function(run: loop.Prepared, layout: Layout):
     sc = run.scenario
     dt, law, p = sc.dt, run.controller.law, run.p
     v_max, w_max = sc.limits.v_max, sc.limits.w_max
-    use_ekf, Rp, Qp, integrator = run.use_ekf, run.Rp, run.Qp, run.integrator
-    windows = (run.dist_start, run.dist_stop, run.dist_v, run.dist_w)
-    plant = (True, run.plant_table, run.plant_at, run.plant_ints, run.plant_vel, run.plant_buffer)
+    use_ekf, Rp = run.use_ekf, run.Rp
     u_cmd, u_applied, z = np.zeros(2), np.zeros(2), np.zeros(3)  # scratch, as in the kernel
 
     def update(t, x, u, params=None):
@@ -205,8 +203,7 @@ def update_function(run: loop.Prepared, layout: Layout):
         if not loop.saturate(u_cmd, v_max, w_max):
             x[:] = np.nan  # the kernel stops the run here
             return x
-        loop.actuate(k, dt, u_cmd, u_applied, q, q_hat, Pq, use_ekf, integrator, Qp, *windows,
-                     *plant)
+        loop.actuate(run, k, u_cmd, u_applied, q, q_hat, Pq)
         return x
 
     return update

@@ -117,7 +117,7 @@ class RunResult:
         return ("t", "x", "y", "theta", "x_r", "y_r", "theta_r", "v_r", "w_r",
                 "x_hat", "y_hat", "theta_hat", "v", "w", *self.state_names)  # fmt: skip
 
-    def to_csv(self, path, rows_per_block: int = 10_000) -> None:
+    def to_csv(self, path, rows_per_block: int = 2_000) -> None:
         """Write the trajectory as CSV (:attr:`csv_header`; one row per instant ``t_0 .. t_n``,
         the per-step columns empty on the last row), atomically and in blocks, so memory does
         not grow with the run; floats in shortest round-trip form."""
