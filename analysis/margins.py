@@ -58,22 +58,25 @@ from wmr.loops import (
     error_plant,
     jury_v_gain_limits,
     jury_v_loop_stable,
+    max_stable_delay,
     operating_point,
     pid_equilibrium,
     pid_loops,
+    printed_rotation_sweep,
     routh_w_loop_stable,
     slow_mode_error,
     spectral_radius,
     stability_region,
     stable_gain_interval,
     start_state_map,
+    unstable_intervals,
 )
 from wmr.margins import analyse_loops, compare_margins, json_number, margins_along_run
 from wmr.sim import simulate
 
 __all__ = ["STEM", "TITLE", "run", "check", "render", "notes", "table", "decay_check",
-           "gain_limit_check", "printed_rotation_sweep", "unstable_intervals",
-           "stability_region_figure", "along_runs_figure", "printed_rotation_figure"]  # fmt: skip
+           "gain_limit_check", "stability_region_figure", "along_runs_figure",
+           "printed_rotation_figure"]  # fmt: skip
 
 STEM = "margins"
 TITLE = "Linearised loops: margins (python-control)"
@@ -112,6 +115,7 @@ def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
     record["along_runs"], along = _along_runs(scenarios, every, SEED)
     record["printed_rotation"], sweep, cc["printed_at_heading_0_equals_corrected_max_abs"] = (
         _printed_rotation(op))  # fmt: skip
+    record["delay_tolerance"] = _delay_tolerance(op)
     record["cross_checks"] = cc
     record["figures"] = [
         common.save_figure(out, "margins_stability_region.png", stability_region_figure(regions)),
@@ -267,6 +271,22 @@ def _printed_rotation(op: OperatingPoint) -> tuple[dict, dict, float]:
     return rec, sweep, float(np.abs(at_0 - _pid_casadi_matrix(op)).max())
 
 
+#: Actuator lags [s] at which the delay each loop tolerates is found (issue 12).
+DELAY_LAGS = (0.0, 0.1)
+
+
+def _delay_tolerance(op: OperatingPoint) -> dict:
+    """The largest input delay [samples and s] each loop tolerates at ``op``, without actuator
+    lag and with the lags of :data:`DELAY_LAGS` (``wmr.loops.max_stable_delay``)."""
+    out = {"operating_point": op.to_json(), "lags_s": list(DELAY_LAGS)}
+    for name, loops_of in (("pid", pid_loops), ("backstepping", backstepping_loops)):
+        steps = [max_stable_delay(dataclasses.replace(op, actuator_tau=tau), loops_of)
+                 for tau in DELAY_LAGS]  # fmt: skip
+        out[name] = {"max_stable_delay_steps": steps,
+                     "max_stable_delay_s": [None if s is None else s * op.dt for s in steps]}
+    return out
+
+
 def decay_check(controller: str, op: OperatingPoint, gains, e0=None,
                 feed_forward: bool = True, decades: float = 5.0) -> dict:  # fmt: skip
     """The nonlinear loop (``wmr.sim.simulate``, no noise) against its linearisation.
@@ -348,50 +368,6 @@ def gain_limit_check(op: OperatingPoint, index: int, limit: float, factors=(0.98
                     "tail_over_initial": float(np.max(norms[-max(len(norms) // 10, 1) :]) / size),
                     "peak_over_initial": float(np.max(norms) / size),
                     "diverged_at": run.diverged_at})  # fmt: skip
-    return out
-
-
-def printed_rotation_sweep(op: OperatingPoint, headings_deg, pid_gains=PID_GAINS,
-                           bsc_gains=BSC_GAINS) -> dict:  # fmt: skip
-    """Spectral radius vs reference heading with the printed error matrix of eqs. 4/6 (E3).
-
-    Returns ``headings_deg`` and the radii ``pid_rho``, ``bsc_rho`` (printed) per heading, and
-    ``pid_rho_corrected``, ``bsc_rho_corrected`` (the same at every heading).
-
-    On a straight line (``w_r = 0`` required: the heading is then constant and the loop LTI) the
-    printed error is ``N(theta) e`` with ``N = [[1, 0, 0], [sin 2theta, cos 2theta, 0], [0, 0, 1]]``
-    (corrected ``e``), so the loop depends on the heading; the corrected loop does not.  Closed
-    loops from :func:`wmr.symbolic.pid_closed_loop_jacobian_function` and
-    :func:`wmr.symbolic.backstepping_closed_loop_jacobian_function` with ``printed=True``.
-    """
-    if op.w_r != 0.0:
-        raise ValueError("the printed-rotation sweep needs a straight line (w_r = 0)")
-    fp = sym.pid_closed_loop_jacobian_function(op.integrator, printed=True)
-    fb = sym.backstepping_closed_loop_jacobian_function(op.integrator, printed=True)
-    xs = pid_equilibrium(op, pid_gains)
-    th = np.radians(np.asarray(headings_deg, dtype=float))
-    rp = np.array([spectral_radius(np.asarray(fp(xs, op.u_r, pid_gains, op.dt, t))) for t in th])
-    rb = np.array([spectral_radius(np.asarray(fb(np.zeros(3), op.u_r, bsc_gains, op.dt, t)))
-                   for t in th])  # fmt: skip
-    A_pid = sym.pid_closed_loop_jacobian_function(op.integrator)(xs, op.u_r, pid_gains, op.dt)
-    A_bsc = sym.backstepping_closed_loop_jacobian_function(op.integrator)(
-        np.zeros(3), op.u_r, bsc_gains, op.dt)  # fmt: skip
-    return {"headings_deg": np.asarray(headings_deg, dtype=float), "pid_rho": rp, "bsc_rho": rb,
-            "pid_rho_corrected": spectral_radius(np.asarray(A_pid)),
-            "bsc_rho_corrected": spectral_radius(np.asarray(A_bsc))}  # fmt: skip
-
-
-def unstable_intervals(x, unstable) -> list:
-    """``[[start, stop], ...]`` of the runs of True in ``unstable`` over the grid ``x``."""
-    out, start = [], None
-    for i, u in enumerate(unstable):
-        if u and start is None:
-            start = i
-        if not u and start is not None:
-            out.append([float(x[start]), float(x[i - 1])])
-            start = None
-    if start is not None:
-        out.append([float(x[start]), float(x[-1])])
     return out
 
 
@@ -510,6 +486,18 @@ def table(record: dict) -> str:
     lines += common.md_table(("gain", *iv),
                              [("stable for", *(f"({_f(lo, 3)}, {_f(hi, 3)})"
                                                for lo, hi in iv.values()))])  # fmt: skip
+    dtol = record.get("delay_tolerance")
+    if dtol:  # records older than issue 12 have none
+        lines += ["", "Largest input delay the loop tolerates (whole samples, ms), with a first-"
+                  "order actuator lag of each time constant, at the operating point above:", ""]
+        lines += common.md_table(("controller", *(f"lag {1e3 * tau:g} ms" for tau in
+                                                  dtol["lags_s"])),
+                                 [(label, *(f"{s} ({1e3 * x:g})" if s is not None else "unstable"
+                                            for s, x in zip(dtol[name]["max_stable_delay_steps"],
+                                                            dtol[name]["max_stable_delay_s"],
+                                                            strict=True)))
+                                  for name, label in (("pid", "PID (eq. 7, fixed)"),
+                                                      ("backstepping", "BSC"))])  # fmt: skip
     return "\n".join(lines) + "\n"
 
 

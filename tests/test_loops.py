@@ -227,3 +227,81 @@ def test_operating_point_validation():
         lp.operating_point(scn.load(scn.builtin("sinusoid")), "median")
     with pytest.raises(ValueError, match="controller"):
         lp.start_state_map("adaptive-nn", lp.error_plant(OPS[0]))
+
+
+# --- Input dynamics of the true robot in the linearised plant (issue 12) --------------------------
+
+
+def _true_error_step(op, e, ua, u):
+    """One step of the true robot (``wmr.plant.lagged_step``, the simulator's own integration)
+    in error coordinates about the constant reference of ``op``: ``(e_next, ua_next)``."""
+    from wmr import plant
+    from wmr.kinematics import EXACT, rotation, step, tracking_error
+
+    q_r = np.zeros(3)
+    th = q_r[2] - e[2]
+    q = np.array([*(q_r[:2] - rotation(th).T[:2, :2] @ e[:2]), th])
+    row = np.array(scn.Plant(actuator_tau=op.actuator_tau).row())
+    vel = np.array(ua, dtype=float)
+    plant.lagged_step(row, plant.KINEMATIC, q, vel, u[0], u[1], op.dt, 1)
+    return tracking_error(q, step(q_r, op.u_r, op.dt, EXACT)), vel
+
+
+@pytest.mark.parametrize("tau", [0.05, 0.3])
+def test_lagged_plant_is_the_linearisation_of_the_true_robots_step(tau):
+    """The exact sampled (e, u_a) step of error_plant equals central differences of the true
+    robot's own step (``wmr.plant``) at perfect tracking, to O(h^2)."""
+    op = lp.OperatingPoint(0.5, 0.3, 0.01, actuator_tau=tau)
+    P = lp.error_plant(op)
+    x0 = np.concatenate((np.zeros(3), op.u_r))
+
+    def f(x, u):
+        e, ua = _true_error_step(op, x[:3], x[3:], u)
+        return np.concatenate((e, ua))
+
+    h = 1e-6
+    A = np.column_stack([(f(x0 + h * d, op.u_r) - f(x0 - h * d, op.u_r)) / (2 * h)
+                         for d in np.eye(5)])  # fmt: skip
+    B = np.column_stack([(f(x0, op.u_r + h * d) - f(x0, op.u_r - h * d)) / (2 * h)
+                         for d in np.eye(2)])  # fmt: skip
+    assert_allclose(P.A, A, atol=1e-8)  # central differences: O(h^2) plus rounding 1e-16/h
+    assert_allclose(P.B, B, atol=1e-8)
+    assert P.nstates == 5 and np.array_equal(P.C, np.hstack((np.eye(3), np.zeros((3, 2)))))
+
+
+def test_delay_line_shifts_the_impulse_response_by_whole_samples():
+    op = lp.OperatingPoint(0.5, 0.2, 0.01, actuator_tau=0.1)
+    base = lp.error_plant(op)
+    for d in (1, 3):
+        delayed = lp.error_plant(dataclasses.replace(op, delay_steps=d))
+        assert delayed.nstates == base.nstates + 2 * d
+        for ch in range(2):
+            y0 = np.squeeze(ct.impulse_response(base[:, ch], T=np.arange(40) * op.dt).outputs)
+            yd = np.squeeze(ct.impulse_response(delayed[:, ch],
+                                                T=np.arange(40 + d) * op.dt).outputs)
+            assert_allclose(yd[..., d:], y0, atol=1e-14)
+            assert np.all(yd[..., :d] == 0.0) and np.any(y0 != 0.0)
+
+
+@pytest.mark.parametrize("controller", ["pid", "backstepping"])
+def test_max_stable_delay_matches_the_simulated_robot(controller):
+    """Two samples below the linearised loop's delay limit the simulated robot (the nonlinear
+    loop with the plant's delay line) settles; two above it, its error grows."""
+    loops_of = lp.pid_loops if controller == "pid" else lp.backstepping_loops
+    settings = pid.FixedSettings(feed_forward=True) if controller == "pid" else None
+    op = lp.operating_point(scn.load(scn.builtin("sinusoid")), "mean")
+    d_max = lp.max_stable_delay(op, loops_of)
+    assert 0 < d_max < 400
+    from wmr.sim import simulate
+
+    for d, grows in ((d_max - 2, False), (d_max + 2, True)):
+        sc = lp.constant_reference_scenario(dataclasses.replace(op, delay_steps=d), 60.0,
+                                            [0.0, 1e-3, 0.0])  # fmt: skip
+        r = simulate(sc, controller, 0, settings=settings)
+        e = np.hypot(*(r.ref[:, :2] - r.q[:, :2]).T)
+        n = len(e)
+        if r.diverged:
+            assert grows
+            continue
+        late, later = e[n // 3 : 2 * n // 3].max(), e[2 * n // 3 :].max()
+        assert (later > late) == grows, (d, late, later)

@@ -214,16 +214,16 @@ def test_simulated_loop_crosses_the_derivative_gain_limit_where_the_eigenvalues_
 def test_printed_rotation_destabilises_both_loops_between_45_and_135_degrees():
     """With the printed matrix the lateral feedback is cos 2theta e2: it changes sign for
     45 < |theta| < 135 deg; at theta = 0 the printed loop is the corrected one."""
-    sweep = study.printed_rotation_sweep(OPS[0], np.array([0.0, 30.0, 90.0, -90.0, 180.0]))
+    sweep = lp.printed_rotation_sweep(OPS[0], np.array([0.0, 30.0, 90.0, -90.0, 180.0]))
     for name in ("pid", "bsc"):
         rho = sweep[f"{name}_rho"]
         assert rho[0] == pytest.approx(sweep[f"{name}_rho_corrected"], rel=1e-12)
         assert rho[1] < 1.0 and rho[4] < 1.0
         assert rho[2] > 1.0 and rho[3] > 1.0
-    assert study.unstable_intervals([0, 1, 2, 3, 4], [False, True, True, False, True]) == [
+    assert lp.unstable_intervals([0, 1, 2, 3, 4], [False, True, True, False, True]) == [
         [1.0, 2.0], [4.0, 4.0]]  # fmt: skip
     with pytest.raises(ValueError, match="straight line"):
-        study.printed_rotation_sweep(OPS[1], [0.0])
+        lp.printed_rotation_sweep(OPS[1], [0.0])
 
 
 @pytest.mark.slow

@@ -75,6 +75,9 @@ __all__ = [
     "first_crossing",
     "stability_region",
     "stable_gain_interval",
+    "max_stable_delay",
+    "printed_rotation_sweep",
+    "unstable_intervals",
 ]
 
 #: The two loops (plant inputs) of the unicycle: linear velocity ``v``, angular velocity ``w``.
@@ -94,9 +97,9 @@ class OperatingPoint:
     """Perfect tracking of a reference with constant ``v_r`` [m/s] and ``w_r`` [rad/s].
 
     A straight line (``w_r = 0``) or a circle; ``dt`` [s] and the robot's ``integrator`` as in a
-    scenario.  ``label`` says where it comes from.  (What the plant of :func:`error_plant` adds
-    to the kinematic step, such as actuator lag or an input delay, belongs here as further
-    fields.)
+    scenario.  ``label`` says where it comes from.  The input dynamics of the true robot
+    (DESIGN §3.3) that :func:`error_plant` models: ``actuator_tau`` [s], a first-order lag of both
+    channels (0: none), and ``delay_steps``, a delay line of whole samples before it.
     """
 
     v_r: float
@@ -104,12 +107,18 @@ class OperatingPoint:
     dt: float
     integrator: str = "exact"
     label: str = ""
+    actuator_tau: float = 0.0
+    delay_steps: int = 0
 
     def __post_init__(self):
         _check(math.isfinite(self.v_r), "v_r", self.v_r, "must be finite")
         _check(math.isfinite(self.w_r), "w_r", self.w_r, "must be finite")
         _check(math.isfinite(self.dt) and self.dt > 0, "dt", self.dt, "must be > 0")
         _check(self.integrator in INTEGRATORS, "integrator", self.integrator, "unknown")
+        _check(math.isfinite(self.actuator_tau) and self.actuator_tau >= 0, "actuator_tau",
+               self.actuator_tau, "must be >= 0")  # fmt: skip
+        _check(int(self.delay_steps) == self.delay_steps and self.delay_steps >= 0,
+               "delay_steps", self.delay_steps, "must be an integer >= 0")  # fmt: skip
 
     @property
     def u_r(self) -> np.ndarray:
@@ -117,9 +126,15 @@ class OperatingPoint:
         return np.array([self.v_r, self.w_r])
 
     def to_json(self) -> dict:
-        """``{"label", "v_r", "w_r", "dt", "integrator"}``."""
-        return {"label": self.label, "v_r": self.v_r, "w_r": self.w_r, "dt": self.dt,
-                "integrator": self.integrator}  # fmt: skip
+        """``{"label", "v_r", "w_r", "dt", "integrator"}``, plus ``actuator_tau`` and
+        ``delay_steps`` when the plant has them."""
+        out = {"label": self.label, "v_r": self.v_r, "w_r": self.w_r, "dt": self.dt,
+               "integrator": self.integrator}  # fmt: skip
+        if self.actuator_tau:
+            out["actuator_tau"] = self.actuator_tau
+        if self.delay_steps:
+            out["delay_steps"] = int(self.delay_steps)
+        return out
 
 
 def operating_point(sc: scn.Scenario, where: str = "mean") -> OperatingPoint:
@@ -138,7 +153,8 @@ def operating_point(sc: scn.Scenario, where: str = "mean") -> OperatingPoint:
         v_r, w_r = float(ref[i, 3]), float(ref[i, 4])
     else:
         raise ValueError(f"where must be 'mean' or 'max-curvature', got {where!r}")
-    return OperatingPoint(v_r, w_r, sc.dt, sc.integrator, f"{sc.name}:{where}")
+    return OperatingPoint(v_r, w_r, sc.dt, sc.integrator, f"{sc.name}:{where}",
+                          sc.plant.actuator_tau, sc.plant.delay_steps)
 
 
 def constant_reference_scenario(op: OperatingPoint, duration: float, e0) -> scn.Scenario:
@@ -147,8 +163,8 @@ def constant_reference_scenario(op: OperatingPoint, duration: float, e0) -> scn.
     A straight line (sinusoid of zero amplitude) if ``w_r = 0``, else a counter-clockwise circle of
     radius ``v_r/|w_r|`` (the loop at ``-w_r`` is its mirror image, with the same eigenvalues).
     The initial pose is the one whose corrected error (eq. 6) to the first reference pose is
-    ``e0`` (3,); ``duration`` [s] is rounded to whole steps.  For comparing the simulator
-    (``wmr.sim.simulate``) with the linearised loop.
+    ``e0`` (3,); ``duration`` [s] is rounded to whole steps; the plant has ``op``'s actuator lag
+    and delay.  For comparing the simulator (``wmr.sim.simulate``) with the linearised loop.
     """
     if op.w_r == 0.0:
         ref = {"kind": "sinusoid", "speed": op.v_r, "amplitude": 0.0, "omega": 1.0}
@@ -161,9 +177,12 @@ def constant_reference_scenario(op: OperatingPoint, duration: float, e0) -> scn.
     c, s = math.cos(th), math.sin(th)
     q0 = [r0[0] - (c * e0[0] - s * e0[1]), r0[1] - (s * e0[0] + c * e0[1]), th]
     n = round(duration / op.dt)
+    plant = {k: v for k, v in (("actuator_tau", op.actuator_tau),
+                               ("delay_steps", int(op.delay_steps))) if v}  # fmt: skip
     return scn.from_dict({"name": f"constant-{op.label or 'op'}", "duration": n * op.dt,
                           "dt": op.dt, "initial_pose": q0, "integrator": op.integrator,
-                          "reference": ref, "noise": {"pose_std": [0.0, 0.0, 0.0]}})  # fmt: skip
+                          "reference": ref, "noise": {"pose_std": [0.0, 0.0, 0.0]},
+                          **({"plant": plant} if plant else {})})  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------
@@ -174,20 +193,28 @@ def constant_reference_scenario(op: OperatingPoint, duration: float, e0) -> scn.
 def error_plant(op: OperatingPoint) -> ct.StateSpace:
     """The plant of the linearised loop at ``op``: inputs ``(v, w)``, outputs ``(e1, e2, e3)``.
 
-    Today the kinematic error step alone: ``de_{k+1} = E de_k + B du_k``, ``y_k = de_k`` (states
-    ``e``, ``C = I``), with ``E`` (3, 3) and ``B`` (3, 2) by CasADi AD of
+    Without input dynamics, the kinematic error step: ``de_{k+1} = E de_k + B du_k``,
+    ``y_k = de_k`` (states ``e``, ``C = I``), with ``E`` (3, 3) and ``B`` (3, 2) by CasADi AD of
     :func:`wmr.symbolic.error_step_function` at ``e = 0``, ``u = u_r`` (exact, no finite
     differences).
 
+    With ``op.actuator_tau > 0`` the applied velocities ``u_a`` lag the command,
+    ``u_a' = (u - u_a) / tau``, and the error moves with them, ``e' = A e + B_c u_a`` (``A``,
+    ``B_c`` the continuous linearisation, :func:`wmr.symbolic.error_dynamics_jacobian_function`);
+    the step of the joint ``(e, u_a)`` with ``u`` held is exact: the matrix exponential of
+    ``[[A, B_c, 0], [0, -I/tau, I/tau], [0, 0, 0]] dt`` (as ``wmr.plant`` integrates the true
+    robot: exactly).  With ``op.delay_steps = d > 0`` a shift register of ``d`` past commands
+    comes first: the plant receives ``u_{k-d}``.  States ``(e, u_a, z_1 .. z_d)`` (``z_j`` the
+    command of ``j`` steps ago), inputs ``(v, w)``, outputs ``(e1, e2, e3)``.
+
     This is the one place where the plant is built: every loop, closed-loop matrix and gain grid
     of this module takes it from here, and handles any number of plant states through the output
-    map ``C`` (the error is ``C x``; states are ordered error first).  Input dynamics between the
-    commanded and the applied input (DESIGN §3.3: a first-order actuator lag per channel, a delay
-    line of whole samples) enter as discrete blocks in series before the kinematic step: the
-    plant's states become ``(e, block states)``, its inputs and outputs stay ``(v, w)`` and
-    ``(e1, e2, e3)``.
+    map ``C`` (the error is ``C x``; states are ordered error first).
     """
-    return _kinematic_error_step(op)
+    core = _kinematic_error_step(op) if op.actuator_tau == 0 else _lagged_error_step(op)
+    if op.delay_steps == 0:
+        return core
+    return _with_delay_line(core, int(op.delay_steps))
 
 
 def pid_controller(gains, dt: float) -> ct.StateSpace:
@@ -489,7 +516,125 @@ def _kinematic_error_step(op: OperatingPoint) -> ct.StateSpace:
                  inputs=("v", "w"), outputs=("e1", "e2", "e3"), name="plant")  # fmt: skip
 
 
+def _lagged_error_step(op: OperatingPoint) -> ct.StateSpace:
+    """The exact sampled step of ``(e, u_a)`` with a first-order lag ``tau`` (see
+    :func:`error_plant`)."""
+    from scipy.linalg import expm
+
+    from wmr import symbolic as sym
+
+    A, Bc = (np.asarray(m) for m in sym.error_dynamics_jacobian_function()(np.zeros(3), op.u_r,
+                                                                            op.u_r))
+    tau = op.actuator_tau
+    M = np.zeros((7, 7))
+    M[:3, :3], M[:3, 3:5] = A, Bc
+    M[3:5, 3:5], M[3:5, 5:7] = -np.eye(2) / tau, np.eye(2) / tau
+    Phi = expm(M * op.dt)
+    C = np.hstack((np.eye(3), np.zeros((3, 2))))
+    return ct.ss(Phi[:5, :5], Phi[:5, 5:], C, np.zeros((3, 2)), op.dt, inputs=("v", "w"),
+                 outputs=("e1", "e2", "e3"), states=("e1", "e2", "e3", "v_a", "w_a"),
+                 name="plant")  # fmt: skip
+
+
+def _with_delay_line(core: ct.StateSpace, d: int) -> ct.StateSpace:
+    """``core`` fed through a delay of ``d`` whole samples: states ``(core, z_1 .. z_d)`` with
+    ``z_1 <- u``, ``z_{j+1} <- z_j`` and ``core`` driven by ``z_d``."""
+    n = core.nstates
+    N = n + 2 * d
+    A = np.zeros((N, N))
+    A[:n, :n] = core.A
+    A[:n, N - 2 :] = core.B  # the core is driven by the oldest command z_d
+    for j in range(1, d):  # z_{j+1} <- z_j
+        A[n + 2 * j : n + 2 * j + 2, n + 2 * (j - 1) : n + 2 * j] = np.eye(2)
+    B = np.zeros((N, 2))
+    B[n : n + 2] = np.eye(2)  # z_1 <- u
+    C = np.hstack((core.C, np.zeros((core.noutputs, 2 * d))))
+    states = [*core.state_labels, *(f"{c}_{j}" for j in range(1, d + 1) for c in ("v", "w"))]
+    return ct.ss(A, B, C, np.zeros((core.noutputs, 2)), core.dt, inputs=("v", "w"),
+                 outputs=("e1", "e2", "e3"), states=states, name="plant")  # fmt: skip
+
+
 def _null_space(C: np.ndarray) -> np.ndarray:
     _, sv, vt = np.linalg.svd(C)
     rank = int(np.sum(sv > 1e-12 * max(sv.max(), 1.0)))
     return vt[rank:].T
+
+
+def max_stable_delay(op: OperatingPoint, loops_of: Callable, limit: int = 400) -> int | None:
+    """The largest input delay [whole samples] for which the loop ``loops_of(op)`` stays stable.
+
+    ``loops_of`` builds the loops (e.g. :func:`pid_loops`) at an operating point;
+    ``op.delay_steps`` is replaced by each delay tried (:func:`error_plant`'s delay line; any
+    ``op.actuator_tau`` is kept).  Returns None if the loop is unstable without delay and
+    ``limit`` if it is still stable at ``limit`` samples; otherwise the last stable delay below
+    the first unstable one (found by doubling, then bisection: the scan assumes a single
+    crossing, true of these loops, whose phase only falls as the delay grows).
+    """
+    import dataclasses
+
+    def stable(d: int) -> bool:
+        L = loops_of(dataclasses.replace(op, delay_steps=d))["v"]
+        return spectral_radius(closed_loop_matrix(L)) < 1.0
+
+    if not stable(0):
+        return None
+    lo, hi = 0, 1
+    while stable(hi):
+        lo = hi
+        if hi >= limit:
+            return limit
+        hi = min(2 * hi, limit)
+    while hi - lo > 1:  # stable(lo), not stable(hi)
+        mid = (lo + hi) // 2
+        lo, hi = (mid, hi) if stable(mid) else (lo, mid)
+    return lo
+
+
+def printed_rotation_sweep(op: OperatingPoint, headings_deg, pid_gains=PID_GAINS,
+                           bsc_gains=BSC_GAINS) -> dict:  # fmt: skip
+    """Spectral radius vs reference heading with the printed error matrix of eqs. 4/6 (E3).
+
+    Returns ``headings_deg`` and the radii ``pid_rho``, ``bsc_rho`` (printed) per heading, and
+    ``pid_rho_corrected``, ``bsc_rho_corrected`` (the same at every heading).
+
+    On a straight line (``w_r = 0`` required: the heading is then constant and the loop LTI) the
+    printed error is ``N(theta) e`` with ``N = [[1, 0, 0], [sin 2theta, cos 2theta, 0], [0, 0, 1]]``
+    (corrected ``e``), so the loop depends on the heading; the corrected loop does not.  Closed
+    loops from :func:`wmr.symbolic.pid_closed_loop_jacobian_function` and
+    :func:`wmr.symbolic.backstepping_closed_loop_jacobian_function` with ``printed=True``.
+    """
+    if op.w_r != 0.0:
+        raise ValueError("the printed-rotation sweep needs a straight line (w_r = 0)")
+    fp = _sym().pid_closed_loop_jacobian_function(op.integrator, printed=True)
+    fb = _sym().backstepping_closed_loop_jacobian_function(op.integrator, printed=True)
+    xs = pid_equilibrium(op, pid_gains)
+    th = np.radians(np.asarray(headings_deg, dtype=float))
+    rp = np.array([spectral_radius(np.asarray(fp(xs, op.u_r, pid_gains, op.dt, t))) for t in th])
+    rb = np.array([spectral_radius(np.asarray(fb(np.zeros(3), op.u_r, bsc_gains, op.dt, t)))
+                   for t in th])  # fmt: skip
+    A_pid = _sym().pid_closed_loop_jacobian_function(op.integrator)(xs, op.u_r, pid_gains, op.dt)
+    A_bsc = _sym().backstepping_closed_loop_jacobian_function(op.integrator)(
+        np.zeros(3), op.u_r, bsc_gains, op.dt)  # fmt: skip
+    return {"headings_deg": np.asarray(headings_deg, dtype=float), "pid_rho": rp, "bsc_rho": rb,
+            "pid_rho_corrected": spectral_radius(np.asarray(A_pid)),
+            "bsc_rho_corrected": spectral_radius(np.asarray(A_bsc))}  # fmt: skip
+
+
+def unstable_intervals(x, unstable) -> list:
+    """``[[start, stop], ...]`` of the runs of True in ``unstable`` over the grid ``x``."""
+    out, start = [], None
+    for i, u in enumerate(unstable):
+        if u and start is None:
+            start = i
+        if not u and start is not None:
+            out.append([float(x[start]), float(x[i - 1])])
+            start = None
+    if start is not None:
+        out.append([float(x[start]), float(x[-1])])
+    return out
+
+
+def _sym():
+    from wmr import symbolic
+
+    return symbolic

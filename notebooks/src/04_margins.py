@@ -113,8 +113,8 @@ show(study.along_runs_figure(along))
 # `e2' = sin 2θ e1 + cos 2θ e2` instead of `e2`: for 45° < |θ| < 135° the lateral feedback
 # changes sign and both the PID and backstepping loops become unstable.
 # %%
-sweep = study.printed_rotation_sweep(op, np.linspace(-180, 180, 361))
+sweep = lp.printed_rotation_sweep(op, np.linspace(-180, 180, 361))
 for name in ("pid", "bsc"):
     print(name, "unstable for headings [deg]:",
-          study.unstable_intervals(sweep["headings_deg"], sweep[f"{name}_rho"] > 1 + 1e-12))
+          lp.unstable_intervals(sweep["headings_deg"], sweep[f"{name}_rho"] > 1 + 1e-12))
 show(study.printed_rotation_figure(sweep))
