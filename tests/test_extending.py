@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import test_registry as contract
 
 import analysis
-import test_registry as contract
 from analysis import report
 from wmr import cli, controllers, references
 from wmr import scenario as scn
