@@ -413,8 +413,11 @@ def test_quick_run_writes_the_study_and_passes_check(tmp_path):
     # the >= 50x python-control target is retired: measured, not a target
     assert stored["ratios"]["python_control_over_iapid"] > 1.0
     assert "python_control_ratio_min" not in stored["targets"]
-    wall_times = {"paper_runs_one_seed", "monte_carlo_1000", "quick_under_2_min"}
-    assert set(stored["targets_met"]) == set(perf.CHECKED) | wall_times
+    recorded = {"paper_runs_one_seed", "monte_carlo_1000", "quick_under_2_min", "plant_overhead"}
+    assert set(stored["targets_met"]) == set(perf.CHECKED) | recorded
+    for name in ("backstepping", "iapid-nn-dekf"):  # issue 12: the plant's cost is measured
+        p = stored["plant"][name]
+        assert p["ratio"] > 0.5 and p["plant_cpu_us_per_step"] > 0 and p["ideal_cpu_us_per_step"] > 0
 
 
 def test_check_passes_on_the_committed_record():
