@@ -20,32 +20,24 @@ __all__ = ["atomic_write_text", "atomic_write_bytes", "atomic_writer", "write_js
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically (temporary file in the same folder, then rename)."""
+    with atomic_writer(path, binary=True) as fh:
+        fh.write(data)
+    return Path(path)
+
+
+@contextlib.contextmanager
+def atomic_writer(path: str | Path, binary: bool = False):
+    """A file handle (UTF-8 text, or bytes with ``binary``) whose content appears at ``path``
+    only when the block ends without an exception: written to a temporary sibling, synced,
+    then renamed over ``path``, so a reader never sees a half-written file and an interrupted
+    write leaves the previous file intact.  Also for files written in pieces."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; give what open() would give
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
-
-
-@contextlib.contextmanager
-def atomic_writer(path: str | Path):
-    """A text file handle whose content appears at ``path`` only when the block ends without an
-    exception (written to a temporary sibling, then renamed): for files written in pieces."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.chmod(tmp, 0o666 & ~_umask())
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+        with (os.fdopen(fd, "wb") if binary
+              else os.fdopen(fd, "w", encoding="utf-8", newline="")) as fh:  # fmt: skip
             yield fh
             fh.flush()
             os.fsync(fh.fileno())
