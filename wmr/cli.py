@@ -1,4 +1,4 @@
-"""Command line: ``wmr run | reproduce | report | analyze | bench | settings`` (DESIGN §3.2).
+"""Command line: ``wmr run | reproduce | report | analyze | bench | sweep | settings`` (§3.2, §3.5).
 
 Exit codes: 0 success; 2 bad input (one line ``error: ...`` on stderr naming the file, key and
 value; nothing written); 1 an unexpected failure.  A diverged run is a result, not an error.
@@ -39,6 +39,16 @@ def _positive_int(text: str) -> int:
     value = _nonnegative_int(text)
     if value == 0:
         raise argparse.ArgumentTypeError("must be >= 1, got 0")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid number: {text!r}") from None
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
     return value
 
 
@@ -261,6 +271,27 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def cmd_sweep(args) -> int:
+    from wmr import sweep
+
+    try:
+        spec = sweep.load_spec(args.spec)
+        sweep.check_out(Path(args.out), spec)
+        print(f"sweep {spec.name}: {spec.n_jobs} runs ({len(spec.points)} design points x "
+              f"{len(spec.scenarios)} scenarios x {len(spec.controllers)} controllers x "
+              f"{len(spec.seeds)} seeds) into {args.out}", flush=True)  # fmt: skip
+        manifest = sweep.run_sweep(spec, args.out, workers=args.workers,
+                                   scheduler=args.scheduler, batch_seconds=args.batch_seconds,
+                                   flush_seconds=args.flush_seconds)  # fmt: skip
+    except sweep.SweepError as err:
+        raise UsageError(str(err)) from None
+    rate = manifest["runs_per_s"]
+    print(f"done: {manifest['done']}/{manifest['jobs']} runs in the store "
+          f"({manifest['runs_this_time']} this time{f', {rate:.1f} runs/s' if rate else ''}; "
+          f"{manifest['engine']}); wrote {args.out}/summary.md")  # fmt: skip
+    return 0
+
+
 def cmd_settings(args) -> int:
     from wmr.io import atomic_write_text
     from wmr.settings_reference import markdown
@@ -307,6 +338,19 @@ def build_parser() -> argparse.ArgumentParser:
     ana.add_argument("--workers", type=_positive_int, default=None,
                      help="worker processes (default: all cores)")  # fmt: skip
     ana.set_defaults(func=cmd_analyze)
+
+    sw = sub.add_parser("sweep", help="run (or resume) a sweep spec into a Parquet store")
+    sw.add_argument("spec", help="sweep spec TOML file (DESIGN §3.5)")
+    sw.add_argument("--out", required=True, help="the store's folder (resumed if it holds one)")
+    sw.add_argument("--workers", type=_positive_int, default=None,
+                    help="local worker processes (default: all cores; 1: serial here)")
+    sw.add_argument("--scheduler", default=None,
+                    help="address of an existing Dask scheduler, e.g. tcp://host:8786")
+    sw.add_argument("--batch-seconds", type=_positive_float, default=2.0,
+                    help="work per task, in seconds (default 2)")
+    sw.add_argument("--flush-seconds", type=_positive_float, default=30.0,
+                    help="write completed rows at least this often (default 30)")
+    sw.set_defaults(func=cmd_sweep)
 
     ref = sub.add_parser("settings", help="print the settings reference (every scenario key)")
     ref.add_argument("--out", default=None, help="write it to this file (docs/settings.md)")

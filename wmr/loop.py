@@ -240,10 +240,11 @@ def actuate(run: Prepared, k: int, u, ua, q, q_hat, Pq) -> None:
 
 
 @njit(inline="always")
-def score(k, dt, q, r, acc, t_tail, bound):
+def score(k, dt, q, r, u, acc, t_tail, bound):
     """Phase 4: accumulate the errors of the pose at ``t_{k+1}`` against the reference row ``r``
-    (``wmr.metrics.accumulate``), then check it; returns the cause code (0: go on)."""
-    d2 = metrics.accumulate(acc, q, r, (k + 1) * dt >= t_tail)
+    and the command ``u`` that led there (``wmr.metrics.accumulate``), then check the pose;
+    returns the cause code (0: go on)."""
+    d2 = metrics.accumulate(acc, q, r, (k + 1) * dt >= t_tail, u)
     if not (math.isfinite(q[0]) and math.isfinite(q[1]) and math.isfinite(q[2])):
         return 1
     if d2 > bound * bound:
@@ -301,7 +302,7 @@ def _advance_template(
             pose_predict(q_hat, Pq, u, dt, integrator, Qp)
         if keep:
             q_log[k + 1, :] = q
-        cause = score(k, dt, q, ref[i + 1], acc, t_tail, bound)
+        cause = score(k, dt, q, ref[i + 1], u, acc, t_tail, bound)
         if cause != 0:
             status[0] = k + 1
             status[1] = cause
@@ -431,7 +432,7 @@ def run_probed(run: Prepared, logs: Logs | None, probe) -> None:
             if logs is not None:
                 logs.q[k + 1] = q
                 logs.ref[k + 1] = ref[i + 1]
-            cause = score(k, dt, q, ref[i + 1], run.acc, metrics.TRANSIENT, bound)
+            cause = score(k, dt, q, ref[i + 1], u, run.acc, metrics.TRANSIENT, bound)
             if cause != 0:
                 run.status[:] = (k + 1, cause)
                 return

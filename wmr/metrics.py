@@ -34,8 +34,9 @@ RMSE_KEYS: tuple[str, ...] = ("x", "y", "theta", "position")
 #: Start [s] of the post-transient window of ``RunResult.rmse_after_transient`` (notes §5.5).
 TRANSIENT = 5.0
 #: Running sums: squares of x, y, theta (world), e1, e2 (robot frame), the count; then x, y,
-#: theta and the count again over the poses with ``t >= TRANSIENT``.
-N_ACC = 10
+#: theta and the count again over the poses with ``t >= TRANSIENT``; then the control effort's
+#: sum of ``v^2 + w^2`` over the commands.
+N_ACC = 11
 
 
 def wrap(a):
@@ -65,9 +66,10 @@ def rmse(q, ref) -> dict[str, float]:
 
 
 @njit(inline="always")
-def accumulate(acc, q, r, tail):
+def accumulate(acc, q, r, tail, u):
     """Add the errors of pose ``q`` against the reference row ``r`` to the running sums ``acc``
-    (``tail``: the pose is past the transient); returns the squared position error."""
+    (``tail``: the pose is past the transient) and the command ``u`` that led to it to the
+    effort; returns the squared position error."""
     dx = r[0] - q[0]
     dy = r[1] - q[1]
     dth = wrap_angle(r[2] - q[2])
@@ -86,6 +88,7 @@ def accumulate(acc, q, r, tail):
         acc[7] += dy * dy
         acc[8] += dth * dth
         acc[9] += 1.0
+    acc[10] += u[0] * u[0] + u[1] * u[1]
     return dx * dx + dy * dy
 
 
@@ -95,16 +98,20 @@ def accumulate_initial(acc, q, r0) -> None:
     dth = math.atan2(math.sin(r0[2] - q[2]), math.cos(r0[2] - q[2]))
     c, s = math.cos(q[2]), math.sin(q[2])
     acc[:6] = (dx * dx, dy * dy, dth * dth, (c * dx + s * dy) ** 2, (-s * dx + c * dy) ** 2, 1.0)
-    acc[6:] = 0.0
+    acc[6:] = 0.0  # t_0 = 0 is before the transient's end; no command yet
 
 
-def reduce(acc, diverged: bool) -> tuple[dict, dict, dict]:
-    """``(rmse, rmse_robot_frame, rmse_after_transient)`` from the running sums (NaN when the run
-    diverged; the tail is NaN too when no pose was past the transient)."""
+def reduce(acc, diverged: bool) -> tuple[dict, dict, dict, float]:
+    """``(rmse, rmse_robot_frame, rmse_after_transient, effort)`` from the running sums (NaN when
+    the run diverged; the tail is NaN too when no pose was past the transient).
+
+    ``effort = sqrt(mean_k (v_k^2 + w_k^2))`` over the saturated commands ``u_k``: the RMS of
+    the command, in the mixed units of ``(m/s, rad/s)`` (a comparison between controllers on
+    the same reference, not a physical energy)."""
     nan = math.nan
     tail = dict.fromkeys(RMSE_KEYS, nan)
     if diverged:
-        return dict.fromkeys(RMSE_KEYS, nan), {"e1": nan, "e2": nan}, tail
+        return dict.fromkeys(RMSE_KEYS, nan), {"e1": nan, "e2": nan}, tail, nan
     if acc[9] > 0:
         m_t = acc[9]
         tail = {"x": math.sqrt(acc[6] / m_t), "y": math.sqrt(acc[7] / m_t),
@@ -117,4 +124,5 @@ def reduce(acc, diverged: bool) -> tuple[dict, dict, dict]:
         "theta": math.sqrt(acc[2] / m),
         "position": math.sqrt((acc[0] + acc[1]) / m),
     }
-    return full, {"e1": math.sqrt(acc[3] / m), "e2": math.sqrt(acc[4] / m)}, tail
+    effort = math.sqrt(acc[10] / (m - 1)) if m > 1 else nan
+    return full, {"e1": math.sqrt(acc[3] / m), "e2": math.sqrt(acc[4] / m)}, tail, effort

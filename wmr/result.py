@@ -47,6 +47,9 @@ class RunResult:
     rmse_after_transient : dict
         The RMSE of ``rmse`` over the poses with ``t >= wmr.metrics.TRANSIENT`` only (NaN if
         none, or diverged): the initial pose error dominates the full-run figure.
+    effort : float
+        RMS of the saturated command, ``sqrt(mean_k (v_k^2 + w_k^2))`` (``wmr.metrics.reduce``;
+        NaN if diverged).
     diverged, diverged_at, cause
         Whether the run stopped early, at which time [s], and why.
     settings
@@ -67,6 +70,7 @@ class RunResult:
     rmse: dict[str, float]
     rmse_robot_frame: dict[str, float]
     rmse_after_transient: dict[str, float] = field(default_factory=dict)
+    effort: float = math.nan
     diverged: bool = False
     diverged_at: float | None = None
     cause: str | None = None
@@ -175,6 +179,7 @@ class Row:
     tail_y: float = math.nan
     tail_theta: float = math.nan
     tail_position: float = math.nan
+    effort: float = math.nan  # RMS of the command (not in rmse.csv)
 
     #: Columns of ``paper/results/rmse.csv``.
     CSV_HEADER = ("scenario", "controller", "variant", "seed", "rmse_x", "rmse_y", "rmse_theta",
@@ -186,7 +191,7 @@ class Row:
         m, t = r.rmse, r.rmse_after_transient
         return cls(r.scenario, r.controller, variant, r.seed, m["x"], m["y"], m["theta"],
                    m["position"], r.diverged, r.diverged_at, r.cause,
-                   t["x"], t["y"], t["theta"], t["position"])  # fmt: skip
+                   t["x"], t["y"], t["theta"], t["position"], r.effort)  # fmt: skip
 
     def csv_row(self) -> tuple:
         return (self.scenario, self.controller, self.variant, self.seed, self.rmse_x, self.rmse_y,

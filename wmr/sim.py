@@ -62,11 +62,12 @@ def _result(run: loop.Prepared, logs: loop.Logs | None) -> RunResult:
     status = run.status
     diverged = bool(status[0] >= 0)
     steps = int(status[0]) if diverged else run.n_steps
-    rmse, rmse_rf, rmse_tail = metrics.reduce(run.acc, diverged)
+    rmse, rmse_rf, rmse_tail, effort = metrics.reduce(run.acc, diverged)
     ctrl = run.controller
     result = RunResult(
         scenario=run.scenario.name, controller=ctrl.name, seed=run.seed, dt=run.dt,
         n_steps=run.n_steps, rmse=rmse, rmse_robot_frame=rmse_rf, rmse_after_transient=rmse_tail,
+        effort=effort,
         diverged=diverged, diverged_at=steps * run.dt if diverged else None,
         cause=loop.CAUSES[int(status[1])], state_names=ctrl.state_names, settings=run.settings,
         final=ctrl.final_state(run.p, run.s, run.theta, run.P),

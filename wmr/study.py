@@ -1,28 +1,63 @@
-"""Many runs at once: jobs, parallel execution on the local cores, per-run summary rows.
+"""Many runs at once: jobs, batches, and the execution engine (serial, or Dask distributed).
 
-A study is a list of :class:`Job`; :func:`run_jobs` executes them in worker processes (or
-serially with ``workers=1``) and returns one :class:`Row` per job in job order.  Each run is
-deterministic in its (scenario, controller, settings, seed), so the rows do not depend on the
-number of workers.  Only summaries are kept (memory O(jobs), not O(jobs x steps)).
+A study is a list of :class:`Job`; :func:`run_jobs` executes them and returns one
+``wmr.result.Row`` per job in job order.  Each run is deterministic in its (scenario,
+controller, settings, seed), so the rows do not depend on the engine, the number of workers or
+how the jobs are batched.  Only summaries are kept (memory O(jobs), not O(jobs x steps)).
+
+The engine (:func:`engine`) is the one way work leaves this process:
+
+- ``workers=1`` (no scheduler): :class:`SerialEngine`, everything in this process;
+- otherwise :class:`DaskEngine` on Dask distributed: a ``LocalCluster`` of ``workers`` worker
+  processes (one thread each), or an existing cluster (``scheduler="tcp://host:port"``).
+
+Work goes out in **batches** (a task costs ~1 ms in Dask and a scheduler slows beyond ~1e6
+tasks, so a task must hold seconds of runs), under **explicit task keys**, with **retries**,
+through a **bounded submission window** (a few batches per worker in flight, so a sweep of any
+size never floods the scheduler).  numba's machine code is not pickled: workers import ``wmr``
+and load the kernels from the on-disk cache, which :func:`warm_up` fills in this process first
+(so no two workers race to write it).  Progress: a bar on a terminal, plain lines otherwise.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import sys
-from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+import time
+import uuid
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, replace
 from typing import Any
 
 from wmr.result import Row
 from wmr.scenario import Scenario
 
-__all__ = ["Job", "Row", "run_job", "run_jobs", "default_workers", "ROW_HEADER"]
+__all__ = [
+    "Job",
+    "Row",
+    "ROW_HEADER",
+    "run_job",
+    "run_batch",
+    "run_jobs",
+    "default_workers",
+    "Engine",
+    "SerialEngine",
+    "DaskEngine",
+    "engine",
+    "warm_up",
+    "Progress",
+]
 
 #: Columns of ``paper/results/rmse.csv``.
 ROW_HEADER = Row.CSV_HEADER
+#: Batches in flight per worker (the submission window).
+WINDOW_PER_WORKER = 3
+#: Retries of a failed batch (a worker lost mid-batch is rescheduled by Dask besides).
+RETRIES = 2
+#: Environment of Dask worker processes: one BLAS thread each (a process per core already).
+WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
 @dataclass(frozen=True)
@@ -46,6 +81,11 @@ def run_job(job: Job) -> Row:
     return Row.of(r, job.variant)
 
 
+def run_batch(fn: Callable, items: Sequence) -> list:
+    """``[fn(item) for item in items]``: the unit of work sent to a worker."""
+    return [fn(item) for item in items]
+
+
 def default_workers() -> int:
     """Worker processes by default: the cores this process may use."""
     try:
@@ -54,12 +94,178 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def _progress(total: int, desc: str, enabled: bool | None):
-    from tqdm import tqdm
+class Progress:
+    """Progress of ``total`` units: a tqdm bar on a terminal, plain lines otherwise (at most one
+    per ``every`` seconds, so a log file does not fill with carriage-return bars), or nothing.
 
-    if enabled is None:
-        enabled = sys.stderr.isatty()
-    return tqdm(total=total, desc=desc, disable=not enabled, unit="run", leave=False)
+    ``enabled=None``: a bar on a terminal, lines otherwise; ``True``: the same; ``False``: off.
+    """
+
+    def __init__(self, total: int, desc: str, enabled: bool | None = None, every: float = 10.0,
+                 stream=None):  # fmt: skip
+        self.total, self.desc, self.every, self.done = total, desc, every, 0
+        self.stream = stream if stream is not None else sys.stderr
+        self.bar = None
+        self.lines = enabled is not False and not _isatty(self.stream)
+        if enabled is not False and _isatty(self.stream):
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, desc=desc, unit="run", leave=False, file=self.stream)
+        self.t0 = self.last = time.perf_counter()
+
+    def update(self, n: int = 1) -> None:
+        self.done += n
+        if self.bar is not None:
+            self.bar.update(n)
+        elif self.lines:
+            now = time.perf_counter()
+            if now - self.last >= self.every or self.done >= self.total:
+                self.last = now
+                self.stream.write(self.line(now) + "\n")
+                self.stream.flush()
+
+    def line(self, now: float | None = None) -> str:
+        """``desc: done/total runs (p %), r runs/s, ETA s``."""
+        elapsed = (time.perf_counter() if now is None else now) - self.t0
+        rate = self.done / elapsed if elapsed > 0 else 0.0
+        eta = (self.total - self.done) / rate if rate > 0 else math.inf
+        pct = 100.0 * self.done / self.total if self.total else 100.0
+        return (f"{self.desc}: {self.done}/{self.total} runs ({pct:.0f} %), {rate:.1f} runs/s, "
+                f"ETA {eta:.0f} s")  # fmt: skip
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _isatty(stream) -> bool:
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError):
+        return False
+
+
+# ---------------------------------------------------------------------------------------------
+# Engines
+
+
+class Engine:
+    """Runs ``fn(item)`` for batches of items and yields the results as they complete."""
+
+    workers: int = 1
+    name: str = "engine"
+
+    def map_batches(self, fn: Callable, batches: Sequence[Sequence], keys: Sequence[str]
+                    ) -> Iterator[tuple[int, list]]:  # fmt: skip
+        """Yield ``(batch index, [fn(item) for item in batch])`` in completion order."""
+        raise NotImplementedError
+
+    def run_everywhere(self, fn: Callable, *args) -> None:
+        """Call ``fn(*args)`` in every worker process (and here)."""
+        fn(*args)
+
+    def close(self) -> None:
+        """Release the workers."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class SerialEngine(Engine):
+    """Everything in this process, batch after batch, in order."""
+
+    name = "serial"
+
+    def map_batches(self, fn, batches, keys):
+        for i, batch in enumerate(batches):
+            yield i, run_batch(fn, batch)
+
+
+class DaskEngine(Engine):
+    """Dask distributed: a ``LocalCluster`` of ``workers`` processes, or the cluster at
+    ``scheduler`` (its workers must import the same ``wmr``)."""
+
+    def __init__(self, workers: int | None = None, scheduler: str | None = None):
+        from distributed import Client, LocalCluster
+
+        self.cluster = None
+        if scheduler:
+            self.client = Client(scheduler, set_as_default=False)
+            self.name = f"dask scheduler {scheduler}"
+        else:
+            n = default_workers() if workers is None else int(workers)
+            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                        dashboard_address=None, silence_logs=logging.ERROR,
+                                        env=dict(WORKER_ENV))  # fmt: skip
+            self.client = Client(self.cluster, set_as_default=False)
+            self.name = f"dask LocalCluster ({n} worker processes)"
+        self.workers = max(1, len(self.client.scheduler_info(n_workers=-1)["workers"]))
+
+    def map_batches(self, fn, batches, keys):
+        from distributed import as_completed
+
+        window = max(1, WINDOW_PER_WORKER * self.workers)
+        pending = iter(range(len(batches)))
+        index = {}
+
+        def submit(i):
+            fut = self.client.submit(run_batch, fn, batches[i], key=keys[i], retries=RETRIES,
+                                     pure=False)  # fmt: skip
+            index[fut.key] = i
+            return fut
+
+        first = [submit(i) for _, i in zip(range(window), pending, strict=False)]
+        done = as_completed(first, loop=self.client.loop)
+        for fut in done:
+            i = index.pop(fut.key)
+            result = fut.result()
+            fut.release()
+            nxt = next(pending, None)
+            if nxt is not None:
+                done.add(submit(nxt))
+            yield i, result
+
+    def run_everywhere(self, fn, *args):
+        fn(*args)
+        self.client.run(fn, *args)
+
+    def close(self):
+        self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+
+def engine(workers: int | None = None, scheduler: str | None = None) -> Engine:
+    """The engine for ``workers`` processes (``1``: serial in this process; None: the usable
+    cores) or for the Dask cluster at ``scheduler``."""
+    if scheduler:
+        return DaskEngine(scheduler=scheduler)
+    n = default_workers() if workers is None else int(workers)
+    if n < 1:
+        raise ValueError(f"workers must be >= 1, got {n}")
+    return SerialEngine() if n == 1 else DaskEngine(workers=n)
+
+
+def warm_up(pairs: Iterable[tuple[Scenario, str]]) -> None:
+    """Compile (or load from the disk cache) the loop kernel of each (scenario, controller):
+    a one-step run each, so that workers only ever read the cache."""
+    from wmr.sim import simulate
+
+    seen = set()
+    for sc, controller in pairs:
+        key = (controller, sc.plant.ideal)
+        if key not in seen:
+            seen.add(key)
+            simulate(replace(sc, duration=sc.dt), controller, 0, keep_trajectory=False)
+
+
+def _batches(n: int, workers: int, per_worker: int = 8) -> list[range]:
+    """``n`` items in contiguous batches, about ``per_worker`` per worker."""
+    size = max(1, math.ceil(n / (workers * per_worker)))
+    return [range(a, min(a + size, n)) for a in range(0, n, size)]
 
 
 def run_jobs(
@@ -69,29 +275,28 @@ def run_jobs(
     progress: bool | None = None,
     desc: str = "runs",
     fn: Callable[[Job], Any] = run_job,
+    scheduler: str | None = None,
 ) -> list:
-    """Run ``jobs`` with ``fn`` on ``workers`` processes; results in job order.
+    """Run ``jobs`` with ``fn`` on :func:`engine` ``(workers, scheduler)``; results in job order.
 
-    ``workers=None`` uses all available cores; ``1`` runs serially in this process.  A progress
-    bar is shown on a terminal (``progress=None``), always (True) or never (False).
+    ``workers=None`` uses all available cores; ``1`` runs serially in this process.  Progress:
+    :class:`Progress` (``progress=None``: a bar on a terminal, plain lines otherwise).
     """
-    workers = default_workers() if workers is None else int(workers)
-    if workers < 1:
-        raise ValueError(f"workers must be >= 1, got {workers}")
-    bar = _progress(len(jobs), desc, progress)
-    try:
-        if workers == 1 or len(jobs) <= 1:
-            out = []
-            for job in jobs:
-                out.append(fn(job))
-                bar.update()
-            return out
-        chunk = max(1, math.ceil(len(jobs) / (workers * 8)))
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            out = []
-            for result in pool.map(fn, jobs, chunksize=chunk):
-                out.append(result)
-                bar.update()
-            return out
-    finally:
-        bar.close()
+    jobs = list(jobs)
+    with engine(1 if len(jobs) <= 1 and not scheduler else workers, scheduler) as eng:
+        if isinstance(eng, DaskEngine):
+            pairs = {(j.controller, j.scenario.plant.ideal): (j.scenario, j.controller)
+                     for j in jobs}  # fmt: skip
+            eng.run_everywhere(warm_up, list(pairs.values()))
+        batches = [[jobs[i] for i in r] for r in _batches(len(jobs), eng.workers)]
+        tag = uuid.uuid4().hex[:12]
+        keys = [f"wmr-jobs-{tag}-{b}" for b in range(len(batches))]
+        out: list = [None] * len(batches)
+        bar = Progress(len(jobs), desc, progress)
+        try:
+            for i, results in eng.map_batches(fn, batches, keys):
+                out[i] = results
+                bar.update(len(results))
+        finally:
+            bar.close()
+    return [r for batch in out for r in batch]

@@ -1,0 +1,180 @@
+"""The sweep engine on real Dask (issue 13): a LocalCluster, and a scheduler plus worker
+processes started as separate programs on 127.0.0.1; faults: a worker killed mid-sweep, the
+driver killed with SIGKILL.  Every time the rows equal the serial engine's."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from wmr import scenario as scn
+from wmr import study, sweep
+
+SPEC = """\
+name = "engine"
+scenarios = ["short.toml"]
+controllers = ["iapid-nn-dekf", "pid"]
+seeds = 3
+
+[design]
+kind = "grid"
+
+[factors]
+"plant.v_gain" = [0.7, 1.0, 1.3]
+"estimator.process_std" = [0.003, 0.01]
+"""
+SCENARIO = """\
+name = "short"
+duration = {duration}
+dt = 0.01
+initial_pose = [0.0, -0.2, 1.5707963267948966]
+[reference]
+kind = "lemniscate"
+size = 2.0
+period = 40.0
+[noise]
+pose_std = [0.01, 0.01, 0.01]
+"""
+PY = sys.executable
+#: How long a test waits for an engine to come up or a sweep to end [s].
+TIMEOUT = 240
+
+
+def _spec(folder: Path, duration: float = 2.0) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "short.toml").write_text(SCENARIO.format(duration=duration))
+    (folder / "spec.toml").write_text(SPEC)
+    return folder / "spec.toml"
+
+
+def _rows(out):
+    df = sweep.read_rows(out).to_pandas()
+    assert not df.job_id.duplicated().any(), "a job ran twice"
+    return df.sort_values("job_id").reset_index(drop=True)
+
+
+@pytest.fixture(scope="module")
+def serial(tmp_path_factory):
+    """The serial engine's rows of the short spec (the reference)."""
+    folder = tmp_path_factory.mktemp("serial")
+    spec = sweep.load_spec(_spec(folder))
+    sweep.run_sweep(spec, folder / "out", workers=1, progress=False)
+    return _rows(folder / "out")
+
+
+def test_local_cluster_gives_the_serial_rows(serial, tmp_path):
+    spec = sweep.load_spec(_spec(tmp_path))
+    m = sweep.run_sweep(spec, tmp_path / "out", workers=2, progress=False, batch_seconds=0.001)
+    assert m["engine"].startswith("dask LocalCluster") and m["workers"] == 2 and m["batches"] > 4
+    assert _rows(tmp_path / "out").equals(serial)
+
+
+def test_run_jobs_on_a_local_cluster_equals_serial():
+    sc = scn.loads(SCENARIO.format(duration=6.0))  # past the transient: no NaN in the rows
+    jobs = [study.Job(sc, c, s) for c in ("pid", "adaptive-nn") for s in range(5)]
+    assert study.run_jobs(jobs, 2, progress=False) == study.run_jobs(jobs, 1, progress=False)
+
+
+class Cluster:
+    """``dask scheduler`` and worker processes (no nanny: one process each) on 127.0.0.1."""
+
+    def __init__(self, folder: Path, workers: int = 2):
+        self.file = folder / "scheduler.json"
+        env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+        self.scheduler = subprocess.Popen(
+            [PY, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", "0",
+             "--no-dashboard", "--scheduler-file", str(self.file)],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)  # fmt: skip
+        _wait(lambda: self.file.exists() and json.loads(self.file.read_text()).get("address"))
+        self.address = json.loads(self.file.read_text())["address"]
+        self.workers = [subprocess.Popen(
+            [PY, "-m", "distributed.cli.dask_worker", "--scheduler-file", str(self.file),
+             "--nthreads", "1", "--no-nanny", "--no-dashboard", "--host", "127.0.0.1",
+             "--local-directory", str(folder / f"worker-{i}")],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+            for i in range(workers)]  # fmt: skip
+        from distributed import Client
+
+        with Client(self.address, timeout=60) as client:
+            client.wait_for_workers(workers, timeout=TIMEOUT)
+
+    def close(self):
+        for p in [*self.workers, self.scheduler]:
+            if p.poll() is None:
+                p.kill()
+            p.wait(timeout=30)
+
+
+def _shards(out: Path) -> int:
+    return len(list((out / "rows").glob("part-*.parquet")))
+
+
+def _wait(ready, timeout: float = TIMEOUT):
+    t0 = time.monotonic()
+    while not ready():
+        if time.monotonic() - t0 > timeout:
+            raise TimeoutError("not ready in time")
+        time.sleep(0.1)
+
+
+@pytest.fixture
+def cluster(tmp_path):
+    c = Cluster(tmp_path)
+    yield c
+    c.close()
+
+
+def test_scheduler_and_worker_processes_give_the_serial_rows(serial, tmp_path, cluster):
+    spec = sweep.load_spec(_spec(tmp_path))
+    m = sweep.run_sweep(spec, tmp_path / "out", scheduler=cluster.address, progress=False,
+                        batch_seconds=0.001)  # fmt: skip
+    assert m["engine"] == f"dask scheduler {cluster.address}" and m["workers"] == 2
+    assert _rows(tmp_path / "out").equals(serial)
+
+
+def test_a_worker_killed_mid_sweep_loses_no_row(tmp_path, cluster):
+    """The driver (``wmr sweep --scheduler``) as a program; one worker is killed once rows are
+    flowing: its batch is run again elsewhere; every row is there once, equal to the serial."""
+    spec_path = _spec(tmp_path / "long", duration=20.0)  # runs of 2,000 steps: seconds of work
+    out = tmp_path / "out"
+    driver = subprocess.Popen(
+        [PY, "-m", "wmr.cli", "sweep", str(spec_path), "--out", str(out), "--scheduler",
+         cluster.address, "--batch-seconds", "0.3", "--flush-seconds", "0.2"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+    _wait(lambda: _shards(out) >= 1 or driver.poll() is not None)
+    assert driver.poll() is None, driver.communicate()
+    cluster.workers[0].kill()
+    stdout, stderr = driver.communicate(timeout=TIMEOUT)
+    assert driver.returncode == 0, stderr.decode()
+    spec = sweep.load_spec(spec_path)
+    reference = tmp_path / "reference"
+    sweep.run_sweep(spec, reference, workers=1, progress=False)
+    assert _rows(out).equals(_rows(reference))
+
+
+def test_sigkill_of_the_driver_then_rerun_resumes_to_the_same_rows(serial, tmp_path):
+    """``wmr sweep`` on a LocalCluster, killed with SIGKILL (with its workers) once a shard is
+    written; the same command again completes the store: the rows of an uninterrupted sweep,
+    none twice."""
+    spec_path = _spec(tmp_path)
+    out = tmp_path / "out"
+    argv = [PY, "-m", "wmr.cli", "sweep", str(spec_path), "--out", str(out), "--workers", "2",
+            "--batch-seconds", "0.02", "--flush-seconds", "0.01"]  # fmt: skip
+    first = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                             start_new_session=True)  # fmt: skip
+    _wait(lambda: _shards(out) >= 1 or first.poll() is not None)
+    os.killpg(first.pid, signal.SIGKILL)
+    first.wait(timeout=30)
+    killed_with = len(sweep.finished_jobs(out))
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=TIMEOUT)
+    assert done.returncode == 0, done.stderr
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["complete"] and manifest["runs_this_time"] == manifest["jobs"] - killed_with
+    assert _rows(out).equals(serial)
