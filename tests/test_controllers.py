@@ -31,13 +31,15 @@ def _euler_scenario(sc):
     return dataclasses.replace(sc, integrator="euler")
 
 
-def test_sgd_step_equals_collapsed_form_with_analytic_jacobian():
+@pytest.mark.parametrize("gradient", pid.GRADIENTS)
+def test_sgd_step_equals_collapsed_form_with_analytic_jacobian(gradient):
     """With J = dt G(theta) and the corrected rotation at the same theta,
-    T_e J = dt [[1,0],[0,0],[0,1]], so dK_v = mu dt a1 e1 phi_v and dK_w = mu dt a3 e3 phi_w
-    (notes §4.3): e2 and alpha2 drop out."""
+    T_e J = dt [[1,0],[0,0],[0,1]] and J[2, :] = (0, dt), so (notes §4.3, errata E5)
+    dK_v = mu dt a1 e1 phi_v and dK_w = mu dt (a3 e3 - h) phi_w with h = (a1 - a2) e1 e2 for the
+    exact gradient, h = 0 for the approximate one: only then do e2 and alpha2 drop out."""
     rng = np.random.default_rng(0)
     settings = pid.Settings(mu=(0.9, 0.5, 0.3, 0.7, 0.2, 0.1), alpha=(1.3, 7.0, 0.6),
-                            gains=(5.0, 5.0, 0.5, 10.0, 2.0, 0.5))  # fmt: skip
+                            gains=(5.0, 5.0, 0.5, 10.0, 2.0, 0.5), gradient=gradient)  # fmt: skip
     sc = _euler_scenario(scn.load(scn.builtin("lemniscate")))
     p, s, _, _ = pid.pack(settings, sc, rng)
     dt = 0.01
@@ -48,24 +50,27 @@ def test_sgd_step_equals_collapsed_form_with_analytic_jacobian():
         s[S_K : S_K + 6] = settings.gains
         s[S_PHI : S_PHI + 6] = phi
         J = dt * input_matrix(theta)
-        pid.sgd_gain_step(p, s, J, e, theta)
+        # the corrected heading term depends on e only: any pose and reference will do
+        pid.adapt_gains(p, s, J, e, np.array([0.0, 0.0, theta]), np.zeros(5), dt)
         mu, a = np.array(settings.mu), settings.alpha
+        h = (a[0] - a[1]) * e[0] * e[1] if gradient == "exact" else 0.0
         expected = np.array(settings.gains) + np.concatenate(
-            (mu[:3] * dt * a[0] * e[0] * phi[:3], mu[3:] * dt * a[2] * e[2] * phi[3:])
+            (mu[:3] * dt * a[0] * e[0] * phi[:3], mu[3:] * dt * (a[2] * e[2] - h) * phi[3:])
         )
         expected = np.clip(expected, settings.gain_min, settings.gain_max)
         np.testing.assert_allclose(s[S_K : S_K + 6], expected, rtol=EXACT_TOL, atol=EXACT_TOL)
 
 
 def test_sgd_with_printed_rotation_picks_up_the_spurious_sin2theta_term():
-    """Printed T_e gives T_e G second row [sin 2theta, 0]: e2 then feeds the v-gains (errata E3)."""
+    """Printed T_e gives T_e G second row [sin 2theta, 0]: e2 then feeds the v-gains (errata E3).
+    (The heading term ``h`` moves the w-gains only, ``J[2, :] = (0, dt)``: the paper's h = 0.)"""
     settings = pid.Settings(printed_rotation=True, alpha=(0.0, 1.0, 0.0))
     sc = scn.load(scn.builtin("lemniscate"))
     p, s, _, _ = pid.pack(settings, sc, np.random.default_rng(0))
     theta, dt = 0.3, 0.01
     s[S_PHI : S_PHI + 6] = 1.0
     e = np.array([0.0, 0.2, 0.0])
-    pid.sgd_gain_step(p, s, dt * input_matrix(theta), e, theta)
+    pid.sgd_gain_step(p, s, dt * input_matrix(theta), e, theta, 0.0)
     dKv = s[S_K] - settings.gains[0]
     assert dKv == pytest.approx(0.9 * dt * math.sin(2 * theta) * 0.2, rel=1e-12)
     T = rotation(theta, True)
@@ -86,8 +91,9 @@ def test_adaptive_pid_law_uses_the_previous_step_jacobian_and_regressor(paper):
     phi0, u0 = s[S_PHI : S_PHI + 6].copy(), u.copy()
     q1 = np.array([0.004, 0.0005, 0.1 + 0.01 * u0[1]])
     expected = s.copy()
-    pid.sgd_gain_step(p, expected, 0.01 * input_matrix(q0[2]),
-                      rotation(q1[2]) @ (ref[:3] - q1) * [1, 1, 1], q1[2])  # fmt: skip
+    e1 = rotation(q1[2]) @ (ref[:3] - q1)
+    pid.sgd_gain_step(p, expected, 0.01 * input_matrix(q0[2]), e1, q1[2],
+                      pid.heading_term(p, e1, q1, ref))  # fmt: skip
     pid.law(p, s, W, P, q1, ref, 0.01, u)
     np.testing.assert_allclose(s[S_K : S_K + 6], expected[S_K : S_K + 6], rtol=1e-13)
     assert not np.allclose(s[S_PHI : S_PHI + 6], phi0)  # regressor moved on to step k

@@ -12,7 +12,8 @@ Per step ``k`` (reproduction-notes §6), with the pose estimate ``q_hat_k`` of t
 2. **Jacobian** (eqs. 20-24, corrected by the chain rule, E7): ``J_{k-1} = dt dNN/d(v, w)`` at
    ``x_{k-1}`` with the updated weights; the printed eqs. 22-24 behind ``printed_jacobian``.
 3. **Tune** the PID gains by the SGD step of eqs. 8-17 with that Jacobian
-   (:func:`wmr.controllers.pid.sgd_gain_step`), then apply eq. (7).
+   (:func:`wmr.controllers.pid.adapt_gains`: the exact gradient by default, read per step or per
+   second as ``jacobian_scale`` says), then apply eq. (7).
 """
 
 from __future__ import annotations
@@ -162,6 +163,6 @@ def law(p, s, theta, P, q_hat, ref, dt, u):
         J = identify(p, s, theta, P, q_hat, dt)
         pid.store_jacobian(s, J)
         if p.jacobian_source != pid.JacobianSource.NONE:  # adapt = false: identify only
-            pid.sgd_gain_step(p, s, J, e, q_hat[2])
+            pid.adapt_gains(p, s, J, e, q_hat, ref, dt)
     pid.pid_output(p, s, e, ref, dt, u)
     pid.remember(s, q_hat, u)

@@ -12,11 +12,15 @@ discretised as ``I[x]_k = I[x]_{k-1} + dt x_k`` and ``D[x]_k = (x_k - x_{k-1}) /
 Gain adaptation (eqs. 8-17, errata E5): with ``F = e^T Gamma e / 2`` and the regressor
 ``phi = dU/dK`` of eq. (15), one SGD step per sample is::
 
-    K <- clip(K + mu o (dU/dK_{k-1})^T J_{k-1}^T T_e(theta_k)^T Gamma e_k, K_min, K_max)
+    K <- clip(K + mu o (dU/dK_{k-1})^T (J_{k-1}^T T_e(theta_k)^T Gamma e_k - h_k J_{k-1}[2, :]^T),
+              K_min, K_max)
 
-where ``J_{k-1} = dq_k/du_{k-1}`` is the plant Jacobian (causal indices, E5b; ``dT_e/dK`` is
-neglected, E5a).  ``adaptive-pid`` uses the exact ZOH Jacobian of the unicycle model;
-``iapid-nn-dekf`` (``wmr.controllers.iapid_nn_dekf``) uses the one identified by the network.
+where ``J_{k-1} = dq_k/du_{k-1}`` is the plant Jacobian (causal indices, E5b) and
+``h_k = e_k^T Gamma dT_e/dtheta (q_r,k - q_k)`` the heading's effect on the error frame, which the
+paper drops (E5a; ``gradient = "approximate"``); with the rotation ``h = (alpha1 - alpha2) e1 e2``
+(:func:`sgd_gain_step` derives it).  ``adaptive-pid`` uses the exact ZOH Jacobian of the unicycle
+model; ``iapid-nn-dekf`` (``wmr.controllers.iapid_nn_dekf``) uses the one identified by the
+network; ``jacobian_scale`` reads either per step (default) or per second.
 
 State vector ``s`` (shared by the PID family, see ``S_*`` indices): gains, Jacobian estimate,
 diagnostics, integrals, previous error signals and regressor, previous input and pose.
@@ -49,7 +53,11 @@ __all__ = [
     "make_params",
     "law",
     "pid_output",
+    "heading_term",
     "sgd_gain_step",
+    "adapt_gains",
+    "GRADIENTS",
+    "JACOBIAN_SCALES",
 ]
 
 # Layout of the PID-family state vector s.
@@ -69,6 +77,10 @@ GAIN_NAMES = ("Kpv", "Kiv", "Kdv", "Kpw", "Kiw", "Kdw")
 J_NAMES = ("J_xv", "J_xw", "J_yv", "J_yw", "J_thv", "J_thw")
 #: Logged along a run by ``adaptive-pid`` (``pid`` logs the same; its gains stay constant).
 STATE_NAMES = GAIN_NAMES + J_NAMES
+#: Values of ``Settings.gradient``: the SGD direction with or without the ``dT_e/dtheta`` term.
+GRADIENTS = ("exact", "approximate")
+#: Values of ``Settings.jacobian_scale``: the plant Jacobian per sample or per second.
+JACOBIAN_SCALES = ("step", "second")
 
 
 
@@ -83,8 +95,8 @@ class JacobianSource(IntEnum):
 #: Frozen parameters of the PID family inside jitted code.
 Params = namedtuple(
     "Params",
-    "K_min K_max mu alpha feed_forward printed_rotation jacobian_source integrator "
-    "nn_n_h nn_printed_jacobian q_diag R v_max w_max",
+    "K_min K_max mu alpha exact_gradient jacobian_per_second feed_forward printed_rotation "
+    "jacobian_source integrator nn_n_h nn_printed_jacobian q_diag R v_max w_max",
 )
 
 
@@ -101,8 +113,23 @@ class Settings:
     mu : tuple of float [-]
         SGD learning rates per gain (eq. 10); the paper's 0.9 for all.
     alpha : tuple of float [-]
-        Cost weights of eq. (8); not in the paper, 1 each (``alpha2`` has no effect with the exact
-        Jacobian: notes §4.3).
+        Cost weights ``(alpha1, alpha2, alpha3)`` of eq. (8); not in the paper, 1 each.  With the
+        exact gradient ``alpha2`` enters the SGD step through ``(alpha1 - alpha2) e1 e2`` on the
+        w-gains; it drops out only with ``gradient = "approximate"`` and the exact model Jacobian
+        (notes §4.3).
+    gradient : str [-]
+        The SGD direction of eq. (17): ``"exact"`` (default), the gradient of ``F_k`` with respect
+        to ``u_{k-1}`` through the plant, heading term ``-h J[2, :]`` included (derived in
+        ``sgd_gain_step``); ``"approximate"``: the paper's ``J^T T_e^T Gamma e``, which drops
+        ``dT_e/dtheta`` (errata E5a) and is exact only when ``alpha1 = alpha2`` (with the
+        rotation; never with ``printed_rotation``).
+    jacobian_scale : str [-]
+        Time scale of the plant Jacobian in the SGD step: ``"step"`` (default) uses
+        ``J_{k-1} = dq_k/du_{k-1}`` of the sampled plant, ``~ dt G(theta)``, so the step is
+        ``~ mu dt e phi``; ``"second"`` uses ``J_{k-1} / dt`` (per second, ``~ G``), which
+        multiplies the effective learning rate by ``1/dt`` (x100 at ``dt = 0.01`` s).  Applies to
+        the model's Jacobian (``adaptive-pid``) and the identified one (``iapid-nn-dekf``); the
+        logged ``J_*`` signals stay per step.
     gain_min, gain_max : tuple of float [SI]
         Clamp of each gain during adaptation (errata E5d).  Not in the paper.  ``Kd <= 0.5``: noise
         on the measured pose drives the derivative gains up (DESIGN §5), and the linearised loop
@@ -120,6 +147,8 @@ class Settings:
     gains: tuple[float, ...] = (5.0, 5.0, 0.0, 10.0, 2.0, 0.0)
     mu: tuple[float, ...] = (0.9, 0.9, 0.9, 0.9, 0.9, 0.9)
     alpha: tuple[float, ...] = (1.0, 1.0, 1.0)
+    gradient: str = "exact"
+    jacobian_scale: str = "step"
     gain_min: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     gain_max: tuple[float, ...] = (50.0, 50.0, 0.5, 50.0, 50.0, 0.5)
     feed_forward: bool = False
@@ -130,6 +159,10 @@ class Settings:
         for name in ("mu", "alpha", "gain_min"):
             for x in getattr(self, name):
                 check(x >= 0, name, getattr(self, name), "entries must be >= 0")
+        check(self.gradient in GRADIENTS, "gradient", self.gradient,
+              f"must be one of {', '.join(GRADIENTS)}")  # fmt: skip
+        check(self.jacobian_scale in JACOBIAN_SCALES, "jacobian_scale", self.jacobian_scale,
+              f"must be one of {', '.join(JACOBIAN_SCALES)}")  # fmt: skip
         for lo, hi, k in zip(self.gain_min, self.gain_max, self.gains, strict=True):
             check(lo <= hi, "gain_max", self.gain_max, "must be >= gain_min entrywise")
             check(lo <= k <= hi, "gains", self.gains, "must lie within [gain_min, gain_max]")
@@ -144,6 +177,8 @@ def make_params(settings: Settings, source: JacobianSource, scenario, **nn) -> P
         K_max=np.array(settings.gain_max),
         mu=np.array(settings.mu),
         alpha=np.array(settings.alpha),
+        exact_gradient=settings.gradient == "exact",
+        jacobian_per_second=settings.jacobian_scale == "second",
         feed_forward=settings.feed_forward,
         printed_rotation=settings.printed_rotation,
         jacobian_source=int(source),
@@ -252,12 +287,81 @@ def pid_output(p, s, e, ref, dt, u):
 
 
 @njit
-def sgd_gain_step(p, s, J, e, theta):
+def heading_term(p, e, q, q_r):
+    """``h = e^T Gamma dT_e/dtheta (q_r - q)``: how the error frame's turn with the heading moves
+    the cost ``F = e^T Gamma e / 2`` (the term of the exact SGD gradient the paper drops, E5a).
+
+    Parameters
+    ----------
+    p : Params
+        Uses ``alpha`` and ``printed_rotation``.
+    e : ndarray, shape (3,)
+        The tracking error of eq. (6) at ``q`` [m, m, rad].
+    q : ndarray, shape (3,)
+        Pose ``(x [m], y [m], theta [rad])`` the error was formed at.
+    q_r : ndarray, shape (>= 2,)
+        Reference sample; only ``(x_r, y_r)`` [m] is used.
+
+    Returns
+    -------
+    float
+        ``h`` [m^2/rad].  With the rotation ``dT_e/dtheta (q_r - q) = (e2, -e1, 0)``, so
+        ``h = alpha1 e1 e2 - alpha2 e2 e1``, computed as ``alpha1 (e1 e2) - alpha2 (e1 e2)``:
+        exactly ``0.0`` when ``alpha1 = alpha2`` (the product rounds once, then ``x - x = 0``).
+        With the printed matrix ``[[c, s, 0], [s, c, 0], [0, 0, 1]]`` (E3) the derivative is
+        ``(-s dx + c dy, c dx - s dy, 0)`` with ``(dx, dy) = (x_r - x, y_r - y)``, and ``h``
+        does not vanish with equal weights (``2 cos(2 theta) dx dy`` at ``alpha = (1, 1, 1)``).
+    """
+    if p.printed_rotation:
+        c = math.cos(q[2])
+        s = math.sin(q[2])
+        dx = q_r[0] - q[0]
+        dy = q_r[1] - q[1]
+        return p.alpha[0] * e[0] * (-s * dx + c * dy) + p.alpha[1] * e[1] * (c * dx - s * dy)
+    e1e2 = e[0] * e[1]
+    return p.alpha[0] * e1e2 - p.alpha[1] * e1e2
+
+
+@njit
+def sgd_gain_step(p, s, J, e, theta, h):
     """One SGD step of eqs. (9)-(17) on the gains in ``s``, with the Jacobian ``J`` (3, 2).
 
-    ``K <- clip(K + mu o (dU/dK)^T J^T T_e(theta)^T Gamma e, K_min, K_max)`` with the regressor
-    ``dU/dK`` of the previous step (stored by :func:`pid_output`), i.e. the gradient
-    ``dF/dK = -e^T Gamma T_e J dU/dK`` of eq. (17) (sign as in E5).
+    ``K <- clip(K + mu o (dU/dK)^T (J^T T_e(theta)^T Gamma e - h J[2, :]^T), K_min, K_max)``
+    with the regressor ``dU/dK`` of the previous step (stored by :func:`pid_output`).
+
+    Derivation (errata E5, corrected rotation).  The cost of step ``k`` is
+    ``F = e^T Gamma e / 2`` (eq. 8), ``Gamma = diag(alpha)``, with ``e = T_e(theta_k) (q_r - q_k)``
+    (eq. 6), and ``q_k = f(q_{k-1}, u_{k-1})`` depends on the gains through
+    ``u_{k-1} = U(K)`` (eq. 7, regressor ``dU/dK``).  ``J = dq_k/du_{k-1}`` (its row 2 is
+    ``dtheta_k/du_{k-1}``), and ``T_e`` depends on ``theta_k``, so by the chain rule::
+
+        de/du = -T_e J + (dT_e/dtheta (q_r - q)) J[2, :]      (3, 2), an outer product last
+        dT_e/dtheta (q_r - q) = (-s dx + c dy, -c dx - s dy, 0) = (e2, -e1, 0)
+        dF/du = e^T Gamma de/du = -(J^T T_e^T Gamma e)^T + h J[2, :]
+        h = e^T Gamma (e2, -e1, 0) = alpha1 e1 e2 - alpha2 e2 e1 = (alpha1 - alpha2) e1 e2
+
+    and ``dF/dK = dF/du dU/dK``; the step ``K <- K - mu o dF/dK^T`` is the update above (sign as
+    in E5).  The paper's eq. (17) drops ``dT_e/dtheta`` (E5a): ``h = 0``, exact only when
+    ``alpha1 = alpha2``.  With the exact ZOH Jacobian ``J[2, :] = (0, dt)``, so ``h`` moves the
+    w-gains only: ``dK_w = mu dt (alpha3 e3 - (alpha1 - alpha2) e1 e2) phi_w``.
+
+    Parameters
+    ----------
+    p : Params
+        ``mu``, ``alpha``, ``K_min``, ``K_max``, ``printed_rotation``.
+    s : ndarray, shape (S_SIZE,)
+        The PID-family state; its gains are updated in place.
+    J : ndarray, shape (3, 2)
+        Plant Jacobian ``dq_k/du_{k-1}`` as the step should read it (per step or per second:
+        :func:`adapt_gains`).
+    e : ndarray, shape (3,)
+        Tracking error ``e_k`` of eq. (6) [m, m, rad].
+    theta : float
+        Heading ``theta_k`` [rad] of ``T_e``.
+    h : float
+        The heading term of :func:`heading_term`; ``0.0`` gives the approximate gradient.  A zero
+        ``h`` skips the term, so the exact gradient with ``alpha1 = alpha2`` is the approximate
+        one bit for bit.
     """
     T = rotation(theta, p.printed_rotation)
     ge = np.empty(3)  # Gamma e
@@ -268,11 +372,29 @@ def sgd_gain_step(p, s, J, e, theta):
         te[j] = T[0, j] * ge[0] + T[1, j] * ge[1] + T[2, j] * ge[2]
     g0 = J[0, 0] * te[0] + J[1, 0] * te[1] + J[2, 0] * te[2]  # (J^T T_e^T Gamma e)_v
     g1 = J[0, 1] * te[0] + J[1, 1] * te[1] + J[2, 1] * te[2]  # (...)_w
+    if h != 0.0:
+        g0 -= h * J[2, 0]
+        g1 -= h * J[2, 1]
     phi = s[S_PHI : S_PHI + 6]
     for i in range(6):
         g = g0 if i < 3 else g1
         k = s[S_K + i] + p.mu[i] * g * phi[i]
         s[S_K + i] = min(max(k, p.K_min[i]), p.K_max[i])
+
+
+@njit
+def adapt_gains(p, s, J, e, q_hat, ref, dt):
+    """The SGD step of a law at step ``k``: settings applied, then :func:`sgd_gain_step`.
+
+    ``J`` (3, 2) is ``dq_k/du_{k-1}`` per sample; with ``jacobian_scale = "second"`` the step reads
+    ``J / dt`` [per second].  ``gradient = "exact"`` adds :func:`heading_term` at ``(e, q_hat,
+    ref)``, ``"approximate"`` leaves it out.  ``e`` (3,) is the error of eq. (6) at ``q_hat`` (3,);
+    ``ref`` (5,) the reference sample; ``dt`` [s].
+    """
+    h = heading_term(p, e, q_hat, ref) if p.exact_gradient else 0.0
+    if p.jacobian_per_second:
+        J = J / dt
+    sgd_gain_step(p, s, J, e, q_hat[2], h)
 
 
 @njit
@@ -299,6 +421,6 @@ def law(p, s, theta, P, q_hat, ref, dt, u):
     if p.jacobian_source != JacobianSource.NONE and s[S_STARTED] != 0.0:
         _, J = step_jacobians(s[S_Q : S_Q + 3], s[S_U : S_U + 2], dt, p.integrator)
         store_jacobian(s, J)
-        sgd_gain_step(p, s, J, e, q_hat[2])
+        adapt_gains(p, s, J, e, q_hat, ref, dt)
     pid_output(p, s, e, ref, dt, u)
     remember(s, q_hat, u)
