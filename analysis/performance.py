@@ -51,7 +51,7 @@ import time
 
 import numpy as np
 
-from analysis import _bench, _floor, common
+from analysis import _bench, _floor, _sweep_bench, common
 from analysis._bench import clocks, per_step, steps_done
 from wmr import controllers, loop, sim
 from wmr import scenario as scn
@@ -69,6 +69,8 @@ TARGETS = {
     "monte_carlo_1000_s_max": 30.0,
     "quick_total_s_max": 120.0,
     "plant_ratio_max": 1.3,  # step with lag, delay and slip / ideal step (issue 12)
+    "sweep_efficiency_min": 0.9,  # sweep runs/s on 2 workers / (2 x serial), issue 13
+    "large_sweep_runs_min": 100_000,
 }
 #: The targets :func:`check` asserts (ratios and correctness); absolute wall-time misses are
 #: recorded only.
@@ -118,6 +120,9 @@ def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
     rec.update(_monte_carlo(lem, workers, quick))
     rss["after_monte_carlo"] = _bench.rss_mb()
     rec["peak_rss_mb_before_python_control"] = rss["after_monte_carlo"]
+    rec["sweep"] = _sweep_bench.throughput(workers=2, quick=quick, repeats=1 if quick else 2)
+    if not quick:
+        rec["sweep"]["large_sweep"] = _sweep_bench.large_sweep(TARGETS["large_sweep_runs_min"])
     pc, overhead = _python_control(lem, 200 if quick else 500, 3 if quick else 5)
     rec["python_control"] = pc
     rec["python_control_overhead"] = overhead
@@ -389,6 +394,13 @@ def targets_met(rec: dict) -> dict:
         "python_control_same_computation": all(v["max_abs_q_difference"] <= SAME_TOL
                                                for v in rec["python_control"].values()),
         "floor_correct": rec["floor_check_max_rel_error"] <= SAME_TOL,
+        "sweep_local_efficiency": None if "sweep" not in rec
+        else rec["sweep"]["local"]["efficiency"] >= t["sweep_efficiency_min"],
+        "sweep_dask_efficiency": None if "sweep" not in rec
+        else rec["sweep"]["dask"]["efficiency"] >= t["sweep_efficiency_min"],
+        "large_sweep": None if "large_sweep" not in rec.get("sweep", {})
+        else rec["sweep"]["large_sweep"]["complete"]
+        and rec["sweep"]["large_sweep"]["runs"] >= t["large_sweep_runs_min"],
         "plant_overhead": None if "plant" not in rec else all(
             rec["plant"][n]["ratio"] <= t["plant_ratio_max"] for n in ("backstepping", SUBJECT)),
     }  # fmt: skip
@@ -438,6 +450,11 @@ def notes(rec: dict) -> list[str]:
         "peak_rss_children_mb is the largest child's high-water mark, which counts the pages it "
         "shares with the parent after fork: it is not memory added to the parent's.",
         "Absolute wall times depend on other load on the shared machine (machine.load_average_*).",
+        "sweep: wmr sweep over seeds of the lemniscate, one controller at a time, on the serial "
+        "engine, a Dask LocalCluster of 2 worker processes and a loopback scheduler with 2 worker "
+        "processes started as separate programs, interleaved; runs/s over each sweep's run phase "
+        "(engine up, kernels warm), the best of the repeats; efficiency = parallel runs/s / "
+        "(2 x serial runs/s); rows_equal: the three stores hold the same rows.",
         "plant: the same runs on the ideal plant (its own kernel, the scenario's integrator) and "
         f"on a true robot with {', '.join(f'{k} = {v}' for k, v in PLANT.items())} (wmr.plant: "
         "delay line, exact first-order channels, Gauss-Legendre position), interleaved; ratio = "
@@ -468,6 +485,15 @@ def _targets_table(rec: dict) -> list[str]:
         f"| <= {t['monte_carlo_1000_s_max']:g} | {ok('monte_carlo_1000')} |",
         f"| parallel rows == serial rows | {rec['parallel_equals_serial']} | true "
         f"| {ok('parallel_equals_serial')} |",
+        *(f"| sweep runs/s, {s['workers']} workers / ({s['workers']} x serial), {e}, worst "
+          f"controller | {s[key]['efficiency']:.2f} | >= {t['sweep_efficiency_min']:g} "
+          f"| {ok('sweep_' + key + '_efficiency')} |"
+          for s in [rec.get("sweep")] if s
+          for key, e in (("local", "local cluster"), ("dask", "loopback scheduler"))),
+        *(f"| a sweep of {g['runs']:,} runs ({g['controller']}, {g['workers']} workers) "
+          f"| {g['seconds']:.0f} s, {g['runs_per_s']:.0f} runs/s | >= "
+          f"{t['large_sweep_runs_min']:,} runs complete | {ok('large_sweep')} |"
+          for g in [rec.get("sweep", {}).get("large_sweep")] if g),
         *(f"| {name} step, plant with lag + delay + slip / ideal plant "
           f"| {rec['plant'][name]['ratio']:.2f}x | <= {t['plant_ratio_max']:g}x "
           f"| {ok('plant_overhead')} |" for name in ("backstepping", SUBJECT) if "plant" in rec),

@@ -82,36 +82,6 @@ def test_run_jobs_on_a_local_cluster_equals_serial():
     assert study.run_jobs(jobs, 2, progress=False) == study.run_jobs(jobs, 1, progress=False)
 
 
-class Cluster:
-    """``dask scheduler`` and worker processes (no nanny: one process each) on 127.0.0.1."""
-
-    def __init__(self, folder: Path, workers: int = 2):
-        self.file = folder / "scheduler.json"
-        env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
-        self.scheduler = subprocess.Popen(
-            [PY, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", "0",
-             "--no-dashboard", "--scheduler-file", str(self.file)],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)  # fmt: skip
-        _wait(lambda: self.file.exists() and json.loads(self.file.read_text()).get("address"))
-        self.address = json.loads(self.file.read_text())["address"]
-        self.workers = [subprocess.Popen(
-            [PY, "-m", "distributed.cli.dask_worker", "--scheduler-file", str(self.file),
-             "--nthreads", "1", "--no-nanny", "--no-dashboard", "--host", "127.0.0.1",
-             "--local-directory", str(folder / f"worker-{i}")],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
-            for i in range(workers)]  # fmt: skip
-        from distributed import Client
-
-        with Client(self.address, timeout=60) as client:
-            client.wait_for_workers(workers, timeout=TIMEOUT)
-
-    def close(self):
-        for p in [*self.workers, self.scheduler]:
-            if p.poll() is None:
-                p.kill()
-            p.wait(timeout=30)
-
-
 def _shards(out: Path) -> int:
     return len(list((out / "rows").glob("part-*.parquet")))
 
@@ -126,9 +96,9 @@ def _wait(ready, timeout: float = TIMEOUT):
 
 @pytest.fixture
 def cluster(tmp_path):
-    c = Cluster(tmp_path)
-    yield c
-    c.close()
+    """A scheduler and two worker processes started as separate programs on 127.0.0.1."""
+    with study.LoopbackCluster(tmp_path / "cluster", workers=2, timeout=TIMEOUT) as c:
+        yield c
 
 
 def test_scheduler_and_worker_processes_give_the_serial_rows(serial, tmp_path, cluster):

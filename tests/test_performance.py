@@ -413,7 +413,12 @@ def test_quick_run_writes_the_study_and_passes_check(tmp_path):
     # the >= 50x python-control target is retired: measured, not a target
     assert stored["ratios"]["python_control_over_iapid"] > 1.0
     assert "python_control_ratio_min" not in stored["targets"]
-    recorded = {"paper_runs_one_seed", "monte_carlo_1000", "quick_under_2_min", "plant_overhead"}
+    recorded = {"paper_runs_one_seed", "monte_carlo_1000", "quick_under_2_min", "plant_overhead",
+                "sweep_local_efficiency", "sweep_dask_efficiency", "large_sweep"}
+    sweep = stored["sweep"]  # issue 13: measured on a local cluster and a loopback scheduler
+    assert sweep["rows_equal"] is True and set(sweep["controllers"]) == {"iapid-nn-dekf", "pid"}
+    assert 0 < sweep["local"]["efficiency"] and 0 < sweep["dask"]["efficiency"]
+    assert stored["targets_met"]["large_sweep"] is None  # quick: no large sweep
     assert set(stored["targets_met"]) == set(perf.CHECKED) | recorded
     for name in ("backstepping", "iapid-nn-dekf"):  # issue 12: the plant's cost is measured
         p = stored["plant"][name]

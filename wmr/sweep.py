@@ -645,9 +645,10 @@ def summarise(out: str | Path, spec: Spec) -> dict:
         ax.set(xlabel=f.path, ylabel="mean position RMSE [m]")
         if f.log:
             ax.set_xscale("log")
-    if not spec.factors:
+    if spec.factors:
+        axes[0, 0].legend(fontsize=8)
+    else:
         axes[0, 0].set_axis_off()
-    axes[0, 0].legend(fontsize=8)
     fig.suptitle(f"sweep {spec.name}: main effects")
     save_figure(fig, out / "summary.png")
     plt.close(fig)
