@@ -110,3 +110,52 @@ def large_sweep(runs: int = 100_000, controller: str = "pid", workers: int = 2) 
             "steps_per_run": spec.runs[0][0].n_steps, "seconds": m["seconds"],
             "run_seconds": m["run_seconds"], "runs_per_s": spec.n_jobs / m["seconds"],
             "batches": m["batches"], "complete": sorted(ids) == list(range(spec.n_jobs))}
+
+
+def scaling_paragraph(rec: dict) -> str:
+    """The measured paragraph of docs/scaling.md, from a performance record (``rec["sweep"]``):
+    every number in it computed here (``tests/test_scaling_doc.py`` keeps the doc current)."""
+    s = rec["sweep"]
+    iapid, pid = s["controllers"]["iapid-nn-dekf"], s["controllers"]["pid"]
+    w = s["workers"]
+    large = s.get("large_sweep")
+    rate = iapid["local_runs_per_s"]
+    cores = 256
+    per_task = s["task_seconds"]
+    batch = 2.0
+    tasks_1e6 = 1e6 / (rate / w) / batch  # a worker does rate/w runs per second
+    text = (
+        f"On this {w}-core machine one run of the 40 s lemniscate ({iapid['steps_per_run']:,} "
+        f"steps) costs {1 / iapid['serial_runs_per_s']:.4f} s for iapid-nn-dekf and "
+        f"{1 / pid['serial_runs_per_s']:.4f} s for the fixed PID (serial engine, per run "
+        f"including the simulation's set-up).  Two worker processes ran iapid-nn-dekf sweeps at "
+        f"{iapid['local_runs_per_s']:.1f} runs/s (local cluster) and "
+        f"{iapid['dask_runs_per_s']:.1f} runs/s (loopback scheduler), efficiencies "
+        f"{iapid['local_efficiency']:.2f} and {iapid['dask_efficiency']:.2f} of twice the serial "
+        f"rate; the PID at {pid['local_runs_per_s']:.0f} and {pid['dask_runs_per_s']:.0f} runs/s "
+        f"(efficiencies {pid['local_efficiency']:.2f} and {pid['dask_efficiency']:.2f}).  A task "
+        f"of the engine costs {1e3 * per_task:.1f} ms when it does nothing.")
+    if large:
+        text += (f"  A sweep of {large['runs']:,} {large['controller']} runs took "
+                 f"{large['seconds']:.0f} s ({large['runs_per_s']:.0f} runs/s).")
+    text += (
+        f"  At these rates 10⁶ iapid-nn-dekf runs take {1e6 / rate / 3600:.1f} h on this machine "
+        f"and 10⁷ take {1e7 / rate / 3600:.0f} h; on {cores} cores ({cores // w}x), "
+        f"{1e6 / rate / (cores / w) / 60:.1f} min and {1e7 / rate / (cores / w) / 60:.0f} min; "
+        f"the PID is {pid['serial_runs_per_s'] / iapid['serial_runs_per_s']:.0f}x cheaper.  With "
+        f"{batch:g} s batches a sweep of 10⁶ iapid-nn-dekf runs is {tasks_1e6:,.0f} tasks and "
+        f"10⁷ is {10 * tasks_1e6:,.0f}, below the millions at which a scheduler slows, and the "
+        f"{1e3 * per_task:.1f} ms per task is {100 * per_task / batch:.1f} % of a batch.")
+    return text
+
+
+def update_scaling_doc(path, rec: dict) -> None:
+    """Rewrite the measured paragraph (between the ``measured`` markers) of docs/scaling.md."""
+    import textwrap
+
+    path = Path(path)
+    doc = path.read_text()
+    head, rest = doc.split("<!-- measured -->\n", 1)
+    _, tail = rest.split("<!-- /measured -->", 1)
+    body = textwrap.fill(scaling_paragraph(rec), 98, break_on_hyphens=False)
+    path.write_text(f"{head}<!-- measured -->\n{body}\n<!-- /measured -->{tail}")

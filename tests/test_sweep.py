@@ -133,6 +133,12 @@ def test_the_store(tmp_path):
     assert "## " not in (out / "summary.md").read_text().split("\n")[0]
     assert "Main effect of `plant.v_gain`" in (out / "summary.md").read_text()
     assert (out / "summary.png").read_bytes()[:4] == b"\x89PNG"
+    import pandas as pd  # the README's way of reading a store
+
+    rows = pd.read_parquet(out / "rows")
+    assert len(rows) == spec.n_jobs and set(rows.job_id) == set(range(spec.n_jobs))
+    means = rows[rows.status == "ok"].groupby(["controller", "plant.v_gain"]).rmse_position.mean()
+    assert len(means) == len(spec.controllers) * len(spec.points)
 
 
 def test_a_run_that_raises_is_an_error_row_and_the_sweep_goes_on(tmp_path, monkeypatch):
