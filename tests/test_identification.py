@@ -185,3 +185,59 @@ def test_a_controller_without_a_plant_jacobian_is_refused(lemniscate_short):
     r = simulate(lemniscate_short, "backstepping", seed=0)
     with pytest.raises(KeyError, match="plant Jacobian"):
         jacobian_quality(r)
+
+
+# --- The true robot's Jacobian and the oracle arm (issue 14) ---------------------------------
+
+
+def _with_plant(name, section):
+    from wmr import scenario as scn_
+
+    return scn_.loads(scn_.builtin(name).read_text() + section)
+
+
+def test_plant_jacobian_of_an_input_map_is_the_nominal_at_the_applied_input_times_the_map():
+    """dq+/du = G(q, M u) M for a plant that only maps the command (exact arc with v_s = 0)."""
+    from wmr import identification as idf
+
+    sc = _with_plant("lemniscate", "[plant]\nv_gain = 0.8\nw_gain = 1.1\nw_from_v = 0.2\n")
+    run = simulate(sc, "adaptive-pid", 0)
+    J = idf.plant_jacobian(sc, run)
+    M = np.array([[0.8, 0.0], [0.2, 1.1]])
+    for k in (0, 17, 2500):
+        G = kin.step_jacobians(run.q_hat[k], M @ run.u[k], sc.dt, kin.EXACT)[1]
+        # central differences of a pose ~1 m with h = 1e-6: rounding ~1e-16 / 1e-6 = 1e-10
+        assert_allclose(J(k, run.q_hat[k], run.u[k], sc.dt), G @ M, rtol=1e-7, atol=1e-9)
+
+
+def test_plant_jacobian_is_zero_with_a_delay_and_nominal_for_the_ideal_plant():
+    from wmr import identification as idf
+    from wmr import scenario as scn_
+
+    sc = _with_plant("lemniscate", "[plant]\ndelay_steps = 1\n")
+    run = simulate(sc, "pid", 0)
+    assert np.all(idf.plant_jacobian(sc, run)(5, run.q_hat[5], run.u[5], sc.dt) == 0.0)
+    ideal = scn_.load(scn_.builtin("lemniscate"))
+    r = simulate(ideal, "pid", 0)
+    assert r.plant_velocity is None and run.plant_velocity.shape == (ideal.n_steps, 2)
+    J = idf.plant_jacobian(ideal, r)(9, r.q_hat[9], r.u[9], ideal.dt)
+    assert np.array_equal(J, kin.step_jacobians(r.q_hat[9], r.u[9], ideal.dt, kin.EXACT)[1])
+
+
+def test_the_oracle_is_iapid_when_the_estimate_is_the_truth():
+    """Without measurement noise and acting on the raw measurement, the estimate is the true
+    pose: the oracle arm (identifier on the true poses) is IAPID-NN-DEKF bit for bit; with
+    noise its identifier's innovation is far smaller."""
+    import dataclasses
+
+    from wmr import scenario as scn_
+
+    sc = scn_.load(scn_.builtin("lemniscate"))
+    clean = dataclasses.replace(sc, noise=scn_.Noise((0.0, 0.0, 0.0)),
+                                estimator=scn_.Estimator(pose_source="raw"))  # fmt: skip
+    a, b = simulate(clean, "iapid-nn-dekf", 3), simulate(clean, "iapid-oracle", 3)
+    assert np.array_equal(a.q, b.q) and np.array_equal(a.state, b.state)
+    noisy_a, noisy_b = simulate(sc, "iapid-nn-dekf", 3), simulate(sc, "iapid-oracle", 3)
+    rms = [np.sqrt(np.mean(r.signal("nn_error")[1:] ** 2)) for r in (noisy_a, noisy_b)]
+    assert rms[1] < 0.3 * rms[0], rms
+    assert np.array_equal(noisy_a.q_hat[0], noisy_b.q_hat[0])  # the same estimate, same noise

@@ -29,6 +29,7 @@ __all__ = [
     "JacobianQuality",
     "rel_error",
     "nominal_jacobian",
+    "plant_jacobian",
     "jacobian_quality",
 ]
 
@@ -84,6 +85,52 @@ def nominal_jacobian(integrator: str | int = "exact") -> TrueJacobian:
 
     def true_jacobian(k: int, q: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
         return kin.step_jacobians(q, u, dt, code)[1]
+
+    return true_jacobian
+
+
+#: Central-difference step [input units] of :func:`plant_jacobian`: the true plant's step is
+#: smooth in the command, so the truncation error is O(h^2) ~ 1e-12 and rounding ~1e-16/h.
+PLANT_FD_STEP = 1e-6
+
+
+def plant_jacobian(scenario, run) -> TrueJacobian:
+    """The true robot's Jacobian ``dq_{k+1}/du_k`` along ``run`` of ``scenario`` (DESIGN §3.3).
+
+    The ideal plant: :func:`nominal_jacobian`.  Otherwise the step of ``wmr.plant`` (the input
+    map in force at ``t_k``, slip, lag or dynamics from the actual velocities
+    ``run.plant_velocity[k]``, the disturbance of the window) differentiated in the command by
+    central differences (:data:`PLANT_FD_STEP`); with an input delay of ``d >= 1`` samples the
+    command of step ``k`` does not reach the robot within the step, and the Jacobian is zero.
+    ``run`` must hold a trajectory.
+    """
+    from wmr import loop, plant
+
+    spec = scenario.plant
+    if spec.ideal:
+        return nominal_jacobian(scenario.integrator)
+    if run.plant_velocity is None:
+        raise ValueError("plant_jacobian needs a run with its trajectory (keep_trajectory=True)")
+    table, at, ints, _, _ = plant.arrays(spec, scenario.dt)
+    dist = np.array([(d.start, d.stop, *d.velocity) for d in scenario.disturbances],
+                    dtype=float).reshape(-1, 4)  # fmt: skip
+    h = PLANT_FD_STEP
+
+    def true_jacobian(k: int, q: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
+        J = np.zeros((3, 2))
+        if spec.delay_steps > 0:
+            return J
+        for j in range(2):
+            out = []
+            for sign in (1.0, -1.0):
+                ua = np.array(u, dtype=float)
+                ua[j] += sign * h
+                loop.disturb(k * dt, ua, dist)
+                qn, vel, state = np.array(q, dtype=float), run.plant_velocity[k].copy(), ints.copy()
+                plant.apply(k, dt, ua, qn, table, at, state, vel)
+                out.append(qn)
+            J[:, j] = (out[0] - out[1]) / (2 * h)
+        return J
 
     return true_jacobian
 

@@ -262,7 +262,7 @@ def _advance_template(
     q, q_hat, ref, noise, use_ekf, Pq, Qp, Rp,
     disturbance, v_max, w_max, bound,
     plant_table, plant_at, plant_ints, plant_vel, plant_buffer,
-    acc, t_tail, status, keep, q_log, qhat_log, u_log, s_log,
+    acc, t_tail, status, keep, q_log, qhat_log, u_log, s_log, vel_log,
 ):  # fmt: skip
     """Advance the loop over steps ``k0 .. k1-1``; ``ref`` holds rows ``k0 .. k1``.
 
@@ -279,6 +279,10 @@ def _advance_template(
     for k in range(k0, k1):
         i = k - k0
         sense(k, q, noise, i, q_hat, Pq, use_ekf, Rp, z)
+        if ORACLE:  # noqa: F821 - bound per kernel: a diagnostic arm reads the true pose
+            p.truth[0] = q[0]
+            p.truth[1] = q[1]
+            p.truth[2] = q[2]
         law(p, s, theta, P, q_hat, ref[i], dt, u)  # noqa: F821 - bound per controller by kernel()
         finite = saturate(u, v_max, w_max)
         if keep:
@@ -292,6 +296,9 @@ def _advance_template(
         ua[0] = u[0]
         ua[1] = u[1]
         if not IDEAL_PLANT:  # noqa: F821 - bound per kernel
+            if keep:
+                vel_log[k, 0] = plant_vel[0]  # the actual (v, w) at t_k, before the step
+                vel_log[k, 1] = plant_vel[1]
             plant.delayed(ua, plant_ints, plant_buffer)
         disturb(k * dt, ua, disturbance)
         if IDEAL_PLANT:  # noqa: F821
@@ -312,7 +319,7 @@ def _advance_template(
 _KERNELS: dict = {}
 
 
-def kernel(name: str, law, ideal: bool = True):
+def kernel(name: str, law, ideal: bool = True, oracle: bool = False):
     """The loop of ``_advance_template`` compiled for one controller ``law`` and plant kind
     (cached on disk).
 
@@ -322,11 +329,12 @@ def kernel(name: str, law, ideal: bool = True):
     kernel each (a jitted function taking the law as a first-class argument cannot be cached
     reliably).
     """
-    key = (name, law, bool(ideal))
+    key = (name, law, bool(ideal), bool(oracle))
     if key not in _KERNELS:
         template = _advance_template
         fn = types.FunctionType(template.__code__,
-                                {**template.__globals__, "law": law, "IDEAL_PLANT": bool(ideal)},
+                                {**template.__globals__, "law": law, "IDEAL_PLANT": bool(ideal),
+                                 "ORACLE": bool(oracle)},
                                 f"_advance_{name}", template.__defaults__,
                                 template.__closure__)  # fmt: skip
         suffix = "" if ideal else "_plant"
@@ -347,6 +355,7 @@ class Logs:
     q_hat: np.ndarray
     u: np.ndarray
     state: np.ndarray
+    vel: np.ndarray  # the true robot's actual (v, w) at t_k (a non-ideal plant only)
 
     @classmethod
     def empty(cls, n: int, n_state: int, keep: bool) -> Logs:
@@ -354,7 +363,8 @@ class Logs:
         per_step = rows - 1 if keep else 0
         return cls(q=np.full((rows, 3), np.nan), ref=np.empty((rows, 5)),
                    q_hat=np.full((per_step, 3), np.nan), u=np.full((per_step, 2), np.nan),
-                   state=np.full((per_step, n_state), np.nan))  # fmt: skip
+                   state=np.full((per_step, n_state), np.nan),
+                   vel=np.full((per_step, 2), np.nan))  # fmt: skip
 
 
 def _start(run: Prepared, logs: Logs | None) -> None:
@@ -373,7 +383,8 @@ def run_kernel(run: Prepared, logs: Logs | None) -> None:
     keep = logs is not None
     if logs is None:
         logs = Logs.empty(0, len(run.controller.state_names), False)
-    advance = kernel(run.controller.name, run.controller.law, sc.plant.ideal)
+    advance = kernel(run.controller.name, run.controller.law, sc.plant.ideal,
+                     run.controller.oracle)
     _start(run, logs if keep else None)
     for k0, k1, ref, noise in run.chunks():
         advance(
@@ -382,6 +393,7 @@ def run_kernel(run: Prepared, logs: Logs | None) -> None:
             sc.limits.v_max, sc.limits.w_max, sc.divergence_bound,
             run.plant_table, run.plant_at, run.plant_ints, run.plant_vel, run.plant_buffer,
             run.acc, metrics.TRANSIENT, run.status, keep, logs.q, logs.q_hat, logs.u, logs.state,
+            logs.vel,
         )  # fmt: skip
         if keep:
             logs.ref[k0 + 1 : k1 + 1] = ref[1:]
@@ -418,6 +430,8 @@ def run_probed(run: Prepared, logs: Logs | None, probe) -> None:
                 on_estimate(k, q, q_hat, Pq, nis)
             if before is not None:
                 before(k, p, s, theta, P, q_hat)
+            if run.controller.oracle:
+                p.truth[0:3] = q
             law(p, s, theta, P, q_hat, ref[i], dt, u)
             finite = saturate(u, v_max, w_max)
             if after is not None:
@@ -428,6 +442,8 @@ def run_probed(run: Prepared, logs: Logs | None, probe) -> None:
             if not finite:
                 run.status[:] = (k, 1)
                 return
+            if logs is not None and not run.scenario.plant.ideal:
+                logs.vel[k] = run.plant_vel
             actuate(run, k, u, ua, q, q_hat, Pq)
             if logs is not None:
                 logs.q[k + 1] = q

@@ -60,6 +60,9 @@ class RunResult:
     pose_estimate, pose_covariance
         The pose filter's final estimate (3,) and covariance (3, 3); the covariance is ``None``
         when the controller acted on the raw measurement.
+    plant_velocity
+        With a trajectory and a non-ideal plant: the true robot's actual ``(v, w)`` at each
+        ``t_k`` before its step, shape (n, 2) (``None`` otherwise).
     """
 
     scenario: str
@@ -85,6 +88,7 @@ class RunResult:
     q_hat: np.ndarray | None = None
     u: np.ndarray | None = None
     state: np.ndarray | None = None
+    plant_velocity: np.ndarray | None = None
 
     def summary(self) -> dict:
         """The JSON record of DESIGN §3.2 (``null`` for the RMSE of a diverged run)."""

@@ -80,4 +80,6 @@ def _result(run: loop.Prepared, logs: loop.Logs | None) -> RunResult:
         result.q_hat = logs.q_hat[:steps]
         result.u = logs.u[:steps]
         result.state = logs.state[:steps]
+        if not run.scenario.plant.ideal:
+            result.plant_velocity = logs.vel[:steps]
     return result

@@ -24,6 +24,8 @@ row, ``tests/test_registry.py``):
 6. ``uses_estimator``: whether it acts on the pose filter's estimate under
    ``pose_source = "paper"`` (``wmr.scenario.Estimator.filters``).
 7. ``label`` and ``colour``: how tables and figures name and draw it.
+8. ``oracle``: a diagnostic arm that reads the true pose (the loop writes it into ``p.truth``
+   before the law); not a controller a real robot could run, so not in :data:`NAMES` ("all").
 """
 
 from __future__ import annotations
@@ -33,7 +35,8 @@ from dataclasses import dataclass
 
 from wmr.controllers import adaptive_nn, backstepping, iapid_nn_dekf, pid
 
-__all__ = ["Controller", "REGISTRY", "NAMES", "PAPER_NAMES", "get", "label", "colour"]
+__all__ = ["Controller", "REGISTRY", "NAMES", "ORACLE_NAMES", "PAPER_NAMES", "get", "label",
+           "colour"]
 
 
 @dataclass(frozen=True)
@@ -49,6 +52,7 @@ class Controller:
     uses_estimator: bool
     label: str
     colour: str
+    oracle: bool = False
 
 
 REGISTRY: dict[str, Controller] = {
@@ -68,10 +72,16 @@ REGISTRY: dict[str, Controller] = {
         Controller("pid", pid.FixedSettings, pid.pack, pid.law, pid.final_state,
                    pid.GAIN_NAMES, uses_estimator=False, label="PID (fixed)",
                    colour="tab:gray"),
+        Controller("iapid-oracle", iapid_nn_dekf.Settings, iapid_nn_dekf.pack_oracle,
+                   iapid_nn_dekf.law, iapid_nn_dekf.final_state, iapid_nn_dekf.STATE_NAMES,
+                   uses_estimator=True, label="IAPID (oracle identifier)", colour="tab:cyan",
+                   oracle=True),
     )
 }  # fmt: skip
-#: Controller names in table order.
-NAMES: tuple[str, ...] = tuple(REGISTRY)
+#: Controller names in table order: the controllers a robot could run (``all``).
+NAMES: tuple[str, ...] = tuple(n for n, c in REGISTRY.items() if not c.oracle)
+#: Diagnostic arms that read the true pose (``oracle``), by name only.
+ORACLE_NAMES: tuple[str, ...] = tuple(n for n, c in REGISTRY.items() if c.oracle)
 #: The four controllers of the paper's tables.
 PAPER_NAMES: tuple[str, ...] = ("iapid-nn-dekf", "backstepping", "adaptive-nn", "adaptive-pid")
 

@@ -32,7 +32,7 @@ from wmr.controllers.pid import S_NN_ERR, S_Q, S_REPAIRS, S_STARTED, S_U
 from wmr.ekf import repair_covariance, weight_update
 from wmr.kinematics import tracking_error, wrap_angle
 
-__all__ = ["Settings", "State", "STATE_NAMES", "N_IN", "pack", "final_state", "law",
+__all__ = ["Settings", "State", "STATE_NAMES", "N_IN", "pack", "pack_oracle", "final_state", "law",
            "identifier_input"]
 
 #: Network inputs ``(v, w, cos theta, sin theta)``; outputs ``(x', y', theta')`` estimates.
@@ -42,7 +42,7 @@ STATE_NAMES = pid.STATE_NAMES + ("nn_error", "cov_repairs")
 #: Smallest allowed diagonal of the weight covariance before a repair is counted.
 P_FLOOR = 1e-12
 
-Params = namedtuple("Params", pid.Params._fields + ("H", "work"))
+Params = namedtuple("Params", pid.Params._fields + ("H", "work", "oracle", "truth"))
 
 
 @dataclass(frozen=True)
@@ -77,19 +77,30 @@ class Settings(pid.Settings):
         check(self.output_scale >= 0, "output_scale", self.output_scale, "must be >= 0")
 
 
-def pack(settings: Settings, scenario, rng):
+def pack(settings: Settings, scenario, rng, oracle: bool = False):
     """``(p, s, theta, P)``: PID parameters, network weights ``theta`` (n,) and covariance
-    ``P0``."""
+    ``P0``.  ``oracle``: the identifier learns from the true poses (``p.truth``, written by the
+    loop) instead of the estimates; the PID still acts on the estimate."""
     n = nn.n_weights(N_IN, settings.hidden, N_OUT)
     source = pid.JacobianSource.NETWORK if settings.adapt else pid.JacobianSource.NONE
     base = pid.make_params(settings, source, scenario, n_h=settings.hidden,
                             printed_jacobian=settings.printed_jacobian,
                             q_diag=np.full(n, settings.q),
                             R=settings.r * np.eye(N_OUT))  # fmt: skip
-    p = Params(*base, H=np.zeros((N_OUT, n)), work=np.zeros((3, N_OUT, n)))
+    p = Params(*base, H=np.zeros((N_OUT, n)), work=np.zeros((3, N_OUT, n)), oracle=bool(oracle),
+               truth=np.zeros(6))  # (true pose at t_k, true pose at t_{k-1})
     theta = nn.init_weights(rng, N_IN, settings.hidden, N_OUT, settings.output_scale)
     P = settings.p0 * np.eye(n)
     return p, pid.initial_state(settings), theta, P
+
+
+def pack_oracle(settings: Settings, scenario, rng):
+    """The ``iapid-oracle`` arm: :func:`pack` with the identifier trained on the true poses.
+
+    It separates what the estimation noise costs the identifier from what its model class
+    (a static network of ``(v, w, cos, sin)``) can learn: same network, same filter, same
+    initial weights for a seed, same PID on the same estimate; only the targets differ."""
+    return pack(settings, scenario, rng, oracle=True)
 
 
 @dataclass(frozen=True)
@@ -133,13 +144,20 @@ def identifier_input(u, theta):
 
 @njit
 def identify(p, s, theta, P, q_hat, dt):
-    """Steps 1-2: weight-EKF update on the last transition, then the identified ``J_{k-1}``."""
-    x = identifier_input(s[S_U : S_U + 2], s[S_Q + 2])
+    """Steps 1-2: weight-EKF update on the last transition, then the identified ``J_{k-1}``.
+
+    The transition is the pose estimates' ``(q_hat_{k-1}, q_hat_k)``, or the true poses'
+    (``p.truth``) for the oracle arm."""
+    if p.oracle:
+        now, before = p.truth[0:3], p.truth[3:6]
+    else:
+        now, before = q_hat, s[S_Q : S_Q + 3]
+    x = identifier_input(s[S_U : S_U + 2], before[2])
     z, h = nn.forward(theta, x, p.nn_n_h, N_OUT)
     d = np.empty(N_OUT)
     for i in range(2):
-        d[i] = (q_hat[i] - s[S_Q + i]) / dt
-    d[2] = wrap_angle(q_hat[2] - s[S_Q + 2]) / dt
+        d[i] = (now[i] - before[i]) / dt
+    d[2] = wrap_angle(now[2] - before[2]) / dt
     innovation = d - z
     s[S_NN_ERR] = math.sqrt(innovation[0] ** 2 + innovation[1] ** 2 + innovation[2] ** 2)
     nn.weight_jacobian(theta, x, p.nn_n_h, N_OUT, h, p.H)
@@ -166,3 +184,5 @@ def law(p, s, theta, P, q_hat, ref, dt, u):
             pid.adapt_gains(p, s, J, e, q_hat, ref, dt)
     pid.pid_output(p, s, e, ref, dt, u)
     pid.remember(s, q_hat, u)
+    if p.oracle:
+        p.truth[3:6] = p.truth[0:3]
