@@ -217,3 +217,30 @@ def test_effort_is_the_rms_of_the_command():
 
     r = simulate(scn.load(scn.builtin("sinusoid")), "adaptive-pid", 0)
     assert_allclose(r.effort, math.sqrt(np.mean(np.sum(r.u**2, axis=1))), rtol=1e-12)
+
+
+def test_measures_add_their_columns(tmp_path):
+    """measures = ["jacobian", "recovery"]: the Jacobian's quality (NaN for a controller with
+    none) and the recovery after the first event, equal to their computation on the run."""
+    from wmr import identification as idf
+    from wmr import measures
+
+    text = SPEC.replace('seeds = 2', 'seeds = 1\nmeasures = ["jacobian", "recovery"]')
+    scenario = SCENARIO + "[[disturbance]]\nstart = 1.0\nstop = 1.5\nvelocity = [0.1, 0.3]\n"
+    (tmp_path / "short.toml").write_text(scenario)
+    (tmp_path / "spec.toml").write_text(text)
+    spec = sweep.load_spec(tmp_path / "spec.toml")
+    sweep.run_sweep(spec, tmp_path / "out", workers=1, progress=False)
+    df = _rows(tmp_path / "out")
+    assert {"jac_rel_error", "jac_sign_w", "recovery_rmse", "recovery_peak"} <= set(df.columns)
+    assert df[df.controller == "backstepping"].jac_rel_error.isna().all()
+    j = int(df[df.controller == "adaptive-pid"].job_id.iloc[1])
+    point, s, c, r = spec.job(j)
+    sc = spec.runs[point][s]
+    run = simulate(sc, "adaptive-pid", spec.seeds[r])
+    q = idf.jacobian_quality(run, idf.plant_jacobian(sc, run), every=measures.JACOBIAN_EVERY)
+    x = q.rel_error[len(q.rel_error) // 2 :]
+    assert df.iloc[j].jac_rel_error == np.mean(x[np.isfinite(x)])
+    w = (run.t >= 1.0) & (run.t < 1.0 + measures.RECOVERY_WINDOW)
+    rec = np.sqrt(np.mean(np.sum((run.ref[w, :2] - run.q[w, :2]) ** 2, axis=1)))
+    assert df.iloc[j].recovery_rmse == rec

@@ -5,6 +5,7 @@ name = "mismatch-vs-mu"
 scenarios = ["lemniscate", "my-scenario.toml"]   # built-in names, or paths relative to this file
 controllers = ["pid", "adaptive-pid", "iapid-nn-dekf"]
 seeds = 20                                       # seeds 0..19, or a list [3, 7]
+measures = ["jacobian", "recovery"]              # optional: wmr.measures (columns beyond RMSEs)
 
 [design]
 kind = "sobol"          # "grid" | "sobol" | "lhs" | "random"
@@ -60,7 +61,7 @@ KINDS = ("grid", "sobol", "lhs", "random")
 #: Result columns of a row, after the job's and the factors' (DESIGN §3.5).
 COLUMNS = ("rmse_x", "rmse_y", "rmse_theta", "rmse_position", "tail_x", "tail_y", "tail_theta",
            "tail_position", "effort", "diverged", "diverged_at", "cause", "status", "error")
-_TOP_KEYS = {"name", "scenarios", "controllers", "seeds", "design", "factors"}
+_TOP_KEYS = {"name", "scenarios", "controllers", "seeds", "design", "factors", "measures"}
 
 
 class SweepError(ValueError):
@@ -107,6 +108,7 @@ class Spec:
     points: tuple[tuple, ...]  # factor values per design point
     runs: tuple[tuple[scn.Scenario, ...], ...] = field(repr=False)  # [point][scenario]
     digest: str = ""
+    measures: tuple[str, ...] = ()  # wmr.measures.MEASURES: columns beyond the RMSEs
 
     @property
     def n_jobs(self) -> int:
@@ -129,7 +131,8 @@ def _err(source):
 
 
 #: Column names a factor may not take (the job's own).
-_RESERVED = ("job_id", "point", "scenario", "controller", "seed", *COLUMNS)
+_RESERVED = ("job_id", "point", "scenario", "controller", "seed", *COLUMNS, "jac_rel_error",
+             "jac_norm_ratio", "jac_sign_v", "jac_sign_w", "recovery_rmse", "recovery_peak")
 
 
 def _factor(path: str, spec: Any, kind: str, fail) -> Factor:
@@ -249,6 +252,12 @@ def loads_spec(text: str, source: str = "<spec>") -> Spec:
              "seeds must be integers >= 0")  # fmt: skip
     fail(len(set(seeds)) == len(seeds), "seeds", seeds, "must not repeat a seed")
     design = _design(data.get("design", {"kind": "grid"}), fail)
+    from wmr.measures import MEASURES
+
+    measures = data.get("measures", [])
+    fail(isinstance(measures, list), "measures", measures, "must be a list of measure names")
+    for m in measures:
+        fail(m in MEASURES, "measures", m, f"unknown measure (known: {', '.join(MEASURES)})")
     table = data.get("factors", {})
     fail(isinstance(table, Mapping), "factors", table, "must be a table")
     factors = tuple(_factor(path, spec, design["kind"], fail) for path, spec in table.items())
@@ -264,7 +273,7 @@ def loads_spec(text: str, source: str = "<spec>") -> Spec:
     ).encode()).hexdigest()  # fmt: skip
     return Spec(name=name, source=source, scenarios=tuple(entries), controllers=tuple(names),
                 seeds=tuple(seeds), design=design, factors=factors, points=tuple(points),
-                runs=runs, digest=digest)  # fmt: skip
+                runs=runs, digest=digest, measures=tuple(dict.fromkeys(measures)))  # fmt: skip
 
 
 def _design(table: Any, fail) -> dict:
@@ -344,6 +353,7 @@ class SweepJob:
     controller: str
     seed: int
     values: tuple  # the point's factor values
+    measures: tuple[str, ...] = ()
 
 
 def jobs(spec: Spec, job_ids) -> list[SweepJob]:
@@ -352,8 +362,14 @@ def jobs(spec: Spec, job_ids) -> list[SweepJob]:
     for j in job_ids:
         point, s, c, r = spec.job(j)
         out.append(SweepJob(j, point, spec.runs[point][s], spec.controllers[c], spec.seeds[r],
-                            spec.points[point]))  # fmt: skip
+                            spec.points[point], spec.measures))  # fmt: skip
     return out
+
+
+def _measure_columns(names) -> tuple[str, ...]:
+    from wmr.measures import MEASURES
+
+    return tuple(c for n in names for c in MEASURES[n].columns)
 
 
 def run_sweep_job(job: SweepJob) -> dict:
@@ -363,10 +379,14 @@ def run_sweep_job(job: SweepJob) -> dict:
     row = {"job_id": job.job_id, "point": job.point, "scenario": job.scenario.name,
            "controller": job.controller, "seed": job.seed, "values": job.values}  # fmt: skip
     try:
-        r = simulate(job.scenario, job.controller, job.seed, keep_trajectory=False)
+        r = simulate(job.scenario, job.controller, job.seed, keep_trajectory=bool(job.measures))
+        if job.measures:
+            from wmr.measures import measure
+
+            row.update(measure(job.measures, r, job.scenario))
     except Exception as err:  # noqa: BLE001 - the contract: an error row, the sweep goes on
-        row.update(dict.fromkeys(COLUMNS[:9], math.nan), diverged=False, diverged_at=None,
-                   cause=None, status="error",
+        row.update(dict.fromkeys(COLUMNS[:9] + _measure_columns(job.measures), math.nan),
+                   diverged=False, diverged_at=None, cause=None, status="error",
                    error=one_line(f"{type(err).__name__}: {err}")[:500])  # fmt: skip
         return row
     m, t = r.rmse, r.rmse_after_transient
@@ -410,6 +430,7 @@ def schema(spec: Spec):
     cols += [(c, pa.float64()) for c in COLUMNS[:9]]
     cols += [("diverged", pa.bool_()), ("diverged_at", pa.float64()), ("cause", pa.string()),
              ("status", pa.string()), ("error", pa.string())]  # fmt: skip
+    cols += [(c, pa.float64()) for c in _measure_columns(spec.measures)]
     return pa.schema(cols)
 
 
