@@ -65,9 +65,11 @@ def paired_differences(a, b) -> np.ndarray:
 def wilcoxon(d, alternative: str = "two-sided") -> float:
     """p-value of the Wilcoxon signed-rank test of the paired differences ``d`` (shape (n,)).
 
-    ``scipy.stats.wilcoxon(d)`` (zero differences dropped, exact distribution for small samples
-    without ties).  With fewer than two differences, or all of them zero, there is no evidence of
-    a difference: 1.0.  ``alternative``: ``"two-sided"``, ``"less"`` (``d`` centred below 0) or
+    ``scipy.stats.wilcoxon(d)`` with its defaults (zero differences dropped; scipy 1.17's
+    ``method="auto"``: the exact null distribution for up to 50 differences without ties or
+    zeros, the exact permutation distribution for up to 13 with them, the normal approximation
+    otherwise).  With fewer than two differences, or all of them zero, there is no evidence of a
+    difference: 1.0.  ``alternative``: ``"two-sided"``, ``"less"`` (``d`` centred below 0) or
     ``"greater"``.
     """
     d = np.asarray(d, dtype=float)
