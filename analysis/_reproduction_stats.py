@@ -1,6 +1,7 @@
 """Statistics of the reproduction study over seeds: per-run tables, paired tests, rankings.
 
 Numbers only; :mod:`analysis.reproduction` assembles them into its record and renders them.
+The generic tests (Wilcoxon signed-rank, Holm's adjustment) live in :mod:`wmr.stats`.
 """
 
 from __future__ import annotations
@@ -8,9 +9,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import stats
 
 from wmr.result import Row
+from wmr.stats import holm, paired_differences, wilcoxon
 
 __all__ = ["AXES", "TAIL", "ALPHA", "describe", "by_run", "paired", "ranking", "holm",
            "contradictions"]  # fmt: skip
@@ -49,17 +50,12 @@ def by_run(rows: list[Row]) -> dict:
 def paired(a: np.ndarray, b: np.ndarray) -> dict:
     """Paired comparison of per-seed RMSEs a vs b (same seeds): difference a - b, the seeds
     where a is better (``wins``) and the two-sided Wilcoxon signed-rank p-value."""
-    ok = np.isfinite(a) & np.isfinite(b)
-    d = a[ok] - b[ok]
+    d = paired_differences(a, b)
     if d.size == 0:
         return {"n": 0}
-    if d.size > 1 and np.any(d != 0):
-        p = float(stats.wilcoxon(d).pvalue)
-    else:
-        p = 1.0
     return {"n": int(d.size), "mean_diff": float(np.mean(d)),
             "std_diff": float(np.std(d, ddof=1)) if d.size > 1 else 0.0,
-            "wins": int(np.sum(d < 0)), "wilcoxon_p": p}  # fmt: skip
+            "wins": int(np.sum(d < 0)), "wilcoxon_p": wilcoxon(d)}  # fmt: skip
 
 
 def ranking(table: dict, scenario: str, names, variant_of: dict | None = None) -> dict:
@@ -76,18 +72,6 @@ def ranking(table: dict, scenario: str, names, variant_of: dict | None = None) -
             means[n] = float(np.mean(vals)) if np.all(np.isfinite(vals)) else math.inf
         ranks[axis] = sorted(names, key=lambda n: means[n])
     return ranks
-
-
-def holm(pvalues: list[float]) -> list[float]:
-    """Holm-Bonferroni adjusted p-values (step-down, monotone), in the input order."""
-    m = len(pvalues)
-    order = sorted(range(m), key=lambda i: pvalues[i])
-    adjusted = [1.0] * m
-    running = 0.0
-    for rank, i in enumerate(order):
-        running = max(running, min(1.0, (m - rank) * pvalues[i]))
-        adjusted[i] = running
-    return adjusted
 
 
 def contradictions(paper_order: list[str], pairs: dict, axis: str,

@@ -20,7 +20,8 @@ The study computes, at the sinusoid's mean operating point (and three others):
   ``Kdv``, ``Kdw``, ``Kpv`` (:func:`gain_limit_check`);
 - the margins along runs as the SGD gains adapt (frozen-time, ``wmr.margins.margins_along_run``);
 - the printed rotation of eqs. 4/6 (errata E3), whose linearisation depends on the heading
-  (:func:`printed_rotation_sweep`).
+  (:func:`printed_rotation_sweep`);
+- Floquet multipliers about the periodic references, beside frozen-time radii (``wmr.floquet``).
 
 ``run`` writes ``results/margins.json``, ``tables/margins.md`` and ``figures/margins_*.png``;
 ``check`` asserts the cross-checks; ``render`` gives the report section.  The notes, the table and
@@ -41,6 +42,7 @@ from analysis._margins_figures import (
     printed_rotation_figure,
     stability_region_figure,
 )
+from wmr import floquet
 from wmr import scenario as scn
 from wmr import symbolic as sym
 from wmr.controllers import backstepping as bsc_mod
@@ -87,6 +89,7 @@ QUICK_EVERY, QUICK_GRID = 500, 21
 #: Controllers whose margins are followed along runs (the PID family).
 ALONG = ("pid", "adaptive-pid", "iapid-nn-dekf")
 HEADINGS_DEG = np.linspace(-180.0, 180.0, 361)
+FLOQUET_SCENARIOS = ("lemniscate", "sinusoid")  # periodic (sinusoid-perturbed: the sinusoid's)
 
 
 def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
@@ -116,6 +119,8 @@ def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
     record["printed_rotation"], sweep, cc["printed_at_heading_0_equals_corrected_max_abs"] = (
         _printed_rotation(op))  # fmt: skip
     record["delay_tolerance"] = _delay_tolerance(op)
+    record["floquet"] = {"how": floquet.HOW, "circle_closed_form": floquet.circle_check(curved),
+                         **{n: floquet.analyse(scenarios[n]) for n in FLOQUET_SCENARIOS}}
     record["cross_checks"] = cc
     record["figures"] = [
         common.save_figure(out, "margins_stability_region.png", stability_region_figure(regions)),
@@ -412,6 +417,13 @@ def check(record: dict) -> None:
             assert d["diverged_at"] is None and d["tail_over_initial"] < 1.0, d
         else:
             assert d["diverged_at"] is not None or d["peak_over_initial"] > 10.0, d
+    fq = record.get("floquet", {})  # records older than issue 14 have none
+    for name in floquet.CONTROLLERS if fq else ():  # Phi = A^N up to round-off (N products)
+        c = fq["circle_closed_form"][name]
+        assert c["monodromy_rel_diff"] < 1e-10 and c["multipliers_rel_diff"] < 1e-8, c
+        sims = [fq[sc][name]["simulated"] for sc in FLOQUET_SCENARIOS]
+        assert all(s.get("modal_ratio_rel_error", 0.0) < floquet.SIM_TOL for s in sims), sims
+        assert name == "backstepping" or all("skipped" not in s for s in sims), sims
 
 
 def notes(record: dict) -> list[str]:
@@ -498,7 +510,8 @@ def table(record: dict) -> str:
                                                             strict=True)))
                                   for name, label in (("pid", "PID (eq. 7, fixed)"),
                                                       ("backstepping", "BSC"))])  # fmt: skip
-    return "\n".join(lines) + "\n"
+    fq = record.get("floquet")  # records older than issue 14 have none
+    return "\n".join(lines + (_floquet_table(fq) if fq else [])) + "\n"
 
 
 def render(record: dict) -> str:
@@ -509,6 +522,22 @@ def render(record: dict) -> str:
 # ---------------------------------------------------------------------------------------------
 # Private helpers
 # ---------------------------------------------------------------------------------------------
+
+
+def _floquet_table(fq: dict) -> list[str]:
+    rows = [(f"{sc} ({fq[sc]['period_s']:.2f} s, {fq[sc]['steps']} steps)", name,
+             " / ".join(f"{m:.3g}" if m > b else f"<{b:.1g}" for m, b in
+                        zip(r["moduli"], r["moduli_error_bound"], strict=True)),
+             f"{r['average_rate']:.6f}", f"{r['time_constant_s']:.2f}",
+             f"{r['frozen_rho_min']:.6f} .. {r['frozen_rho_max']:.6f}",
+             f"{r['frozen_period_prediction']:.3g}", common.fmt(r["simulated"].get(
+                 "modal_ratio_rel_error"), 6)) for sc in FLOQUET_SCENARIOS
+            for name in floquet.CONTROLLERS for r in [fq[sc][name]]]  # fmt: skip
+    return ["", "Floquet multipliers about the periodic references (largest abs(mu), '<': below "
+            "round-off), rate per step abs(mu_1)^(1/N), time constant, frozen-time max abs(z) "
+            "along the orbit, its geometric mean^N (frozen-time abs(mu_1)), simulated abs(mu_1) "
+            "relative error (—: unresolved):", "", *common.md_table(("reference", "loop",
+            "abs(mu)", "rate", "tau [s]", "frozen max abs(z)", "frozen^N", "sim. rel. err."), rows)]
 
 
 def _pid_casadi_matrix(op: OperatingPoint) -> np.ndarray:

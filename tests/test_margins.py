@@ -8,6 +8,7 @@ and the committed record ``paper/results/margins.json`` for the study's check an
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 import math
@@ -226,9 +227,16 @@ def test_printed_rotation_destabilises_both_loops_between_45_and_135_degrees():
         lp.printed_rotation_sweep(OPS[1], [0.0])
 
 
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory):
+    """One ``--quick`` run of the study (its directory and returned record), shared."""
+    out = tmp_path_factory.mktemp("margins")
+    return out, study.run(out, quick=True)
+
+
 @pytest.mark.slow
-def test_quick_run_writes_its_files_and_passes_its_check(tmp_path):
-    record = study.run(tmp_path, quick=True)
+def test_quick_run_writes_its_files_and_passes_its_check(quick):
+    tmp_path, record = quick
     study.check(record)
     stored = json.loads((tmp_path / "results" / "margins.json").read_text())
     study.check(stored)
@@ -237,6 +245,35 @@ def test_quick_run_writes_its_files_and_passes_its_check(tmp_path):
     for name in stored["figures"]:
         assert name.startswith("margins_") and (tmp_path / "figures" / name).exists()
     assert stored["along_runs"]["every_steps"] == study.QUICK_EVERY
+    committed = json.loads((PAPER / "results" / "margins.json").read_text())
+    assert set(committed) <= set(stored) and "floquet" in stored  # issue 14 adds a key
+
+
+@pytest.mark.slow
+def test_quick_record_holds_the_floquet_multipliers_and_the_check_guards_them(quick):
+    """The Floquet block (wmr.floquet): both loops stable about both periodic references, the
+    PID's slowest multiplier confirmed by the simulator on both, its table block rendered; the
+    check rejects a failed closed form, a simulator disagreement and an unchecked PID."""
+    tmp_path, _ = quick
+    record = json.loads((tmp_path / "results" / "margins.json").read_text())
+    fl = record["floquet"]
+    for sc in study.FLOQUET_SCENARIOS:
+        for name in ("pid", "backstepping"):
+            r = fl[sc][name]
+            assert r["stable"] and r["moduli"][0] < 1 and r["average_rate"] < 1
+            assert r["frozen_rho_min"] <= r["frozen_rho_max"] < 1
+        assert fl[sc]["pid"]["simulated"]["modal_ratio_rel_error"] < 1e-3
+    assert "Floquet multipliers about the periodic references" in study.table(record)
+    for path, value in ((("circle_closed_form", "pid", "monodromy_rel_diff"), 1e-6),
+                        (("sinusoid", "backstepping", "simulated", "modal_ratio_rel_error"), 0.1),
+                        (("lemniscate", "pid", "simulated"), {"skipped": "-"})):  # fmt: skip
+        bad = copy.deepcopy(record)
+        node = bad["floquet"]
+        for key in path[:-1]:
+            node = node[key]
+        node[path[-1]] = value
+        with pytest.raises(AssertionError):
+            study.check(bad)
 
 
 def test_committed_record_passes_the_check_and_renders_the_committed_report_text():
