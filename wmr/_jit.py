@@ -19,7 +19,18 @@ from pathlib import Path
 
 import numba
 
-__all__ = ["njit", "CACHE_DIR", "KEEP_OLD_CACHES", "prune_old_caches"]
+__all__ = ["njit", "CACHE_DIR", "KEEP_OLD_CACHES", "prune_old_caches", "source_digest"]
+
+
+def source_digest(package: Path | None = None) -> str:
+    """A hash of every ``*.py`` source of the package (16 hex digits): what its results and
+    compiled kernels depend on."""
+    package = package or Path(__file__).resolve().parent
+    digest = hashlib.sha256()
+    for path in sorted(package.rglob("*.py")):
+        digest.update(str(path.relative_to(package)).encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
 
 
 def _cache_dir(package: Path | None = None) -> str:
@@ -27,11 +38,7 @@ def _cache_dir(package: Path | None = None) -> str:
     if os.environ.get("NUMBA_CACHE_DIR"):
         return os.environ["NUMBA_CACHE_DIR"]
     package = package or Path(__file__).resolve().parent
-    digest = hashlib.sha256()
-    for path in sorted(package.rglob("*.py")):
-        digest.update(str(path.relative_to(package)).encode())
-        digest.update(path.read_bytes())
-    return str(package / "__pycache__" / f"numba-{digest.hexdigest()[:16]}")
+    return str(package / "__pycache__" / f"numba-{source_digest(package)}")
 
 
 #: Caches of earlier versions of the source kept beside the current one (the newest first).

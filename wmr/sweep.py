@@ -140,10 +140,14 @@ def _factor(path: str, spec: Any, kind: str, fail) -> Factor:
     fail(path not in _RESERVED, key, spec, "is a column of every row, not a scenario key to vary")
     if isinstance(spec, list):
         fail(len(spec) > 0, key, spec, "needs at least one level")
+        levels = []
         for v in spec:
-            fail(isinstance(v, int | float | str | bool), key, spec,
-                 "levels must be numbers, strings or booleans")  # fmt: skip
-        return Factor(path, levels=tuple(spec))
+            vector = isinstance(v, list) and len(v) > 0 and all(
+                isinstance(x, int | float) and not isinstance(x, bool) for x in v)  # fmt: skip
+            fail(isinstance(v, int | float | str | bool) or vector, key, spec,
+                 "levels must be numbers, strings, booleans or arrays of numbers")  # fmt: skip
+            levels.append(tuple(v) if vector else v)
+        return Factor(path, levels=tuple(levels))
     fail(isinstance(spec, Mapping), key, spec, "must be a list of levels or {low, high[, log]}")
     fail(kind != "grid", key, dict(spec), "a grid needs a list of levels, not a range")
     fail(set(spec) <= {"low", "high", "log"} and {"low", "high"} <= set(spec), key, dict(spec),
