@@ -50,7 +50,7 @@ import numpy as np
 
 from wmr import controllers
 from wmr import scenario as scn
-from wmr._settings import one_line
+from wmr._settings import InputError, one_line
 
 __all__ = ["SweepError", "Factor", "Spec", "SweepJob", "load_spec", "loads_spec", "design_points",
            "COLUMNS", "jobs", "run_sweep_job", "job_rows", "check_out", "run_sweep", "read_rows",
@@ -64,13 +64,8 @@ COLUMNS = ("rmse_x", "rmse_y", "rmse_theta", "rmse_position", "tail_x", "tail_y"
 _TOP_KEYS = {"name", "scenarios", "controllers", "seeds", "design", "factors", "measures"}
 
 
-class SweepError(ValueError):
+class SweepError(InputError):
     """An invalid spec: ``source`` file, dotted ``key``, ``value``, ``reason`` (one line)."""
-
-    def __init__(self, source: str, key: str, value: Any, reason: str):
-        self.source, self.key, self.value, self.reason = source, key, value, reason
-        shown = "" if value is None else f" = {value!r}"
-        super().__init__(f"{one_line(source)}: {one_line(key)}{shown}: {reason}")
 
 
 @dataclass(frozen=True)
