@@ -23,8 +23,16 @@ import numpy as np
 from analysis import _reproduction_figures as figures
 from analysis import _reproduction_stats as stats
 from analysis import common
-from analysis._ablations import Variant, noise_scaled, pose_source, pose_source_changes, scaled
-from analysis._reproduction_stats import ALPHA, AXES, TAIL
+from analysis._ablations import (
+    Variant,
+    backstepping_damping,
+    damping_phrase,
+    noise_scaled,
+    pose_source,
+    pose_source_changes,
+    scaled,
+)
+from analysis._reproduction_stats import ALPHA, AXES, EQUIVALENCE_METRICS, MARGIN, TAIL
 from analysis.common import fmt
 from wmr import controllers
 from wmr import scenario as scn
@@ -32,8 +40,9 @@ from wmr.io import atomic_write_text, write_csv
 from wmr.metrics import TRANSIENT
 from wmr.study import ROW_HEADER, Job, Row, run_jobs
 
-__all__ = ["STEM", "TITLE", "PAPER_RMSE", "VARIANTS", "build_jobs", "summarise",
-           "gain_excursions", "table_markdown", "table_latex", "run", "check", "render"]
+__all__ = ["STEM", "TITLE", "PAPER_RMSE", "VARIANTS", "REGIMES_SECTION", "build_jobs",
+           "summarise", "gain_excursions", "adaptation_defaults", "table_markdown", "table_latex",
+           "run", "check", "render"]  # fmt: skip
 
 STEM = "reproduction"
 TITLE = "Tables 1–3: the paper beside this reproduction"
@@ -63,6 +72,19 @@ TABLE_NUMBER = {"lemniscate": 1, "sinusoid": 2, "sinusoid-perturbed": 3}
 #: Seeds of a quick run (``run(..., quick=True)``).
 QUICK_SEEDS = 3
 
+#: Backstepping gains (k1, k2, k3): the default, and the two ablations.
+_BSC_DEFAULT = controllers.get("backstepping").Settings().gains
+_BSC_LOW = (0.5, 2.0, 1.4)
+_BSC_KANAYAMA = (10.0, 64.0, 16.0)
+#: Where the report answers what adaptation does away from the suite's defaults (the regime
+#: study, ``analysis/regimes.py``; its title starts so).
+REGIMES_SECTION = "When does adaptation pay?"
+
+
+def _gains(g) -> str:
+    return "(" + ", ".join(f"{x:g}" for x in g) + ")"
+
+
 #: The ablations, in report order.  Which controllers each applies to is derived from the
 #: settings fields it names (``analysis._ablations``).
 VARIANTS: dict[str, Variant] = {v.name: v for v in (
@@ -78,10 +100,12 @@ VARIANTS: dict[str, Variant] = {v.name: v for v in (
             scenario=pose_source("filtered"), affects=pose_source_changes),
     Variant("pose-raw", "iapid-nn-dekf uses the raw measured pose (no localisation filter)",
             scenario=pose_source("raw"), affects=pose_source_changes),
-    Variant("bsc-gains-low", "backstepping gains (0.5, 2, 1.4): slow, critically damped",
-            settings={"gains": (0.5, 2.0, 1.4)}, only=("backstepping",)),
-    Variant("bsc-gains-kanayama", "backstepping gains (10, 64, 16) of Kanayama et al. (1990)",
-            settings={"gains": (10.0, 64.0, 16.0)}, only=("backstepping",)),
+    Variant("bsc-gains-low", f"backstepping gains {_gains(_BSC_LOW)}: "
+            + damping_phrase(_BSC_LOW, _BSC_DEFAULT),
+            settings={"gains": _BSC_LOW}, only=("backstepping",)),
+    Variant("bsc-gains-kanayama", f"backstepping gains {_gains(_BSC_KANAYAMA)} of Kanayama et al. "
+            "(1990): " + damping_phrase(_BSC_KANAYAMA, _BSC_DEFAULT),
+            settings={"gains": _BSC_KANAYAMA}, only=("backstepping",)),
     Variant("noise-free", "no pose-measurement noise", scenario=noise_scaled(0.0)),
     Variant("noise-x3", "pose-measurement noise std x3 (0.03 m, 0.03 rad)",
             scenario=noise_scaled(3.0)),
@@ -148,14 +172,46 @@ def _scenario_summary(table: dict, sc: str) -> dict:
     return entry
 
 
+def _feed_forward_best(table: dict, sc: str) -> dict:
+    """The controller with the lowest mean position RMSE on ``sc`` without and with the
+    ``feed-forward`` variant (the controllers it applies to on its runs, the others on their
+    default runs): :func:`analysis._reproduction_stats.lowest_mean`."""
+    names = [n for n in controllers.NAMES if (sc, n, "default") in table]
+    return {"without": stats.lowest_mean(table, sc, names),
+            "with": stats.lowest_mean(table, sc, names, "feed-forward")}  # fmt: skip
+
+
+def _damping() -> dict:
+    """The lateral-loop damping of backstepping's default gains and of every variant that sets
+    them (:func:`analysis._ablations.backstepping_damping`)."""
+    out = {"default": backstepping_damping(_BSC_DEFAULT)}
+    for v in VARIANTS.values():
+        if "gains" in v.settings and v.only == ("backstepping",):
+            out[v.name] = backstepping_damping(v.settings["gains"])
+    return out
+
+
 def summarise(rows: list[Row]) -> dict:
-    """Statistics, rankings and paired comparisons of ``rows``, as stored in the record."""
+    """Statistics, rankings and paired comparisons of ``rows``, as stored in the record; the
+    equivalence tests of the PID family (:func:`analysis._reproduction_stats.equivalence`), the
+    best controller without and with feed-forward, and backstepping's damping per gain set."""
     table = stats.by_run(rows)
     scenarios = sorted({k[0] for k in table}, key=list(PAPER_RMSE).index)
     out: dict = {"scenarios": {}, "variants": {k: v.description for k, v in VARIANTS.items()},
                  "alpha": ALPHA}  # fmt: skip
     for sc in scenarios:
         out["scenarios"][sc] = _scenario_summary(table, sc)
+    out["equivalence"] = {
+        "margin": MARGIN, "alpha": ALPHA, "metrics": list(EQUIVALENCE_METRICS),
+        "definition": "paired-t TOST of a - b at the margin (each one-sided test at alpha: "
+                      "ci_low, ci_high is the 1 - 2 alpha interval of the mean difference, m); "
+                      "wilcoxon_p: two-sided signed-rank test of the same differences, p_holm: "
+                      "Holm-adjusted over every (scenario, pair) of one metric",
+        "scenarios": stats.equivalence(table, scenarios),
+    }  # fmt: skip
+    out["feed_forward_best"] = {sc: _feed_forward_best(table, sc) for sc in scenarios
+                                if any(k[0] == sc and k[2] == "feed-forward" for k in table)}
+    out["backstepping_damping"] = _damping()
     return out
 
 
@@ -179,6 +235,17 @@ def gain_excursions(scenarios: dict, seed: int = 0) -> dict:
     return out
 
 
+def adaptation_defaults(scenarios: dict) -> dict:
+    """The settings at which the PID family's equivalence is measured, per scenario: APID's
+    initial gains, its SGD rates and how the plant Jacobian is read (``jacobian_scale``)."""
+    out = {}
+    for name, sc in scenarios.items():
+        st = sc.settings("adaptive-pid")
+        out[name] = {"gains": list(st.gains), "mu": list(st.mu),
+                     "jacobian_scale": st.jacobian_scale, "gradient": st.gradient}  # fmt: skip
+    return out
+
+
 def run(out, *, quick: bool = False, workers: int | None = None, seeds: int = 20,
         progress: bool | None = None) -> dict:  # fmt: skip
     """Run the reproduction into ``out`` (``QUICK_SEEDS`` seeds at most when ``quick``), write
@@ -192,6 +259,7 @@ def run(out, *, quick: bool = False, workers: int | None = None, seeds: int = 20
     record["seeds"] = seeds
     record["transient_s"] = TRANSIENT
     record["gain_excursion"] = gain_excursions(scenarios)
+    record["adaptation_defaults"] = adaptation_defaults(scenarios)
     record["pose_source"] = {
         sc: {n: "filtered" if s.estimator.filters(n) else "raw" for n in controllers.NAMES}
         for sc, s in scenarios.items()
@@ -330,27 +398,91 @@ def _adaptation(rep: dict) -> list[str]:
     rel = {g: max(r["max_rel"][g] for d in exc.values() for r in d.values())
            for g in ("Kpv", "Kiv", "Kpw", "Kiw")}  # fmt: skip
     kd = max(r["max_abs"][g] for d in exc.values() for r in d.values() for g in ("Kdv", "Kdw"))
-    inert = max(rel.values()) < 0.1 and kd < 0.5
-    title = "Adaptation barely acts" if inert else "Gain adaptation"
-    return [f"**{title}.** Over a run (seed 0, every scenario) SGD moves the "
-            f"proportional and integral gains by at most "
+    return ["**Gain adaptation at the suite's defaults.** Over a run (seed 0, every scenario) "
+            "SGD moves the proportional and integral gains by at most "
             + ", ".join(f"{g} {100 * v:.1f} %" for g, v in rel.items())
             + f"; the derivative gains start at 0 and reach {kd:.3f} (E5d: measurement "
-            "noise drives them up)."
-            + ("  With the paper's μ = 0.9 the update is μ dt e φ with errors of "
-               "centimetres, so IAPID-NN-DEKF, APID and the fixed PID behave as one "
-               "controller." if inert else ""), ""]  # fmt: skip
+            "noise drives them up).", ""]  # fmt: skip
 
 
-def _near_ties(rep: dict) -> list[str]:
-    tiny = [f"{sc}: {' vs '.join(controllers.label(x) for x in pair.split(' vs '))}"
-            for sc, e in rep["scenarios"].items() for pair, r in e["paired"].items()
-            if r["position"].get("n") and abs(r["position"]["mean_diff"]) < 1e-3]  # fmt: skip
-    if not tiny:
+def _mm(x: float) -> str:
+    return f"{1e3 * x:+.2f}"
+
+
+def _pair_label(pair: str) -> str:
+    return " − ".join(controllers.label(x) for x in pair.split(" vs "))
+
+
+def _equivalence_pairs(eq: dict, metric: str) -> dict:
+    """pair -> {scenario: test record} of one metric, pairs in the record's order."""
+    out: dict = {}
+    for sc, pairs in eq["scenarios"].items():
+        for pair, rec in pairs.items():
+            if metric in rec:
+                out.setdefault(pair, {})[sc] = rec[metric]
+    return out
+
+
+def _defaults_clause(rep: dict) -> str:
+    """The settings the equivalence holds at, read from the record."""
+    d = rep.get("adaptation_defaults")
+    if not d:
+        return "at the suite's defaults"
+    first = next(iter(d.values()))
+    mu = sorted(set(first["mu"]))
+    tails = [e["runs"]["pid"]["default"]["tail_position"]["mean"]
+             for e in rep["scenarios"].values() if "pid" in e["runs"]]  # fmt: skip
+    good = (f", with which the fixed PID alone reaches {fmt(min(tails))}–{fmt(max(tails))} m "
+            f"position RMSE after the transient" if tails else "")  # fmt: skip
+    return (f"at the suite's defaults: good initial gains {_gains(first['gains'])}{good}, and "
+            f"the paper's μ = {', '.join(f'{m:g}' for m in mu)} with the plant Jacobian read "
+            f"per {first['jacobian_scale']} (J = dt G, so the SGD step is ~ μ dt e φ; "
+            "`wmr.controllers.pid`)")  # fmt: skip
+
+
+def _equivalence(rep: dict) -> list[str]:
+    """The paired tests of "IAPID, APID and the fixed PID are the same controller"."""
+    eq = rep.get("equivalence")
+    if not eq or not eq["scenarios"]:
         return []
-    return ["Pairs whose mean position RMSE differs by less than 1 mm (statistically "
-            "detectable with common random numbers, practically the same): "
-            + "; ".join(tiny) + ".", ""]  # fmt: skip
+    metric, *others = eq["metrics"]
+    margin_mm = f"{1e3 * eq['margin']:g} mm"
+    level = f"{100 * (1 - 2 * eq['alpha']):g} %"
+    parts, n_eq, n_diff, n_all = [], 0, 0, 0
+    for pair, recs in _equivalence_pairs(eq, metric).items():
+        k = sum(r["equivalent"] for r in recs.values())
+        n_eq, n_all = n_eq + k, n_all + len(recs)
+        n_diff += sum(r["different"] for r in recs.values())
+        detail = "; ".join(
+            f"{sc} {_mm(r['mean_diff'])} mm [{_mm(r['ci_low'])}, {_mm(r['ci_high'])}], TOST p = "
+            f"{fmt(r['p'], 3)}, Wilcoxon p (Holm) = {fmt(r['p_holm'], 3)}"
+            for sc, r in recs.items())  # fmt: skip
+        parts.append(f"{_pair_label(pair)}: equivalent within ±{margin_mm} in {k} of "
+                     f"{len(recs)} scenarios ({detail})")  # fmt: skip
+    n_seeds = next(iter(next(iter(eq["scenarios"].values())).values()))[metric]["n"]
+    lines = [f"**Are IAPID-NN-DEKF, APID and the fixed PID the same controller?** Paired TOST "
+             f"of the {metric} RMSE at a margin of ±{margin_mm} over {n_seeds} seeds (mean "
+             f"difference A − B and its {level} interval; equivalence when the interval lies "
+             f"inside the margin), beside the two-sided Wilcoxon test of the same differences "
+             f"(Holm over the {n_all} tests): " + "; ".join(parts) + "."]  # fmt: skip
+    for other in others:
+        counts = [f"{_pair_label(pair)} in {sum(r['equivalent'] for r in recs.values())} of "
+                  f"{len(recs)}" for pair, recs in _equivalence_pairs(eq, other).items()]
+        if counts:
+            lines.append(f"On the RMSE after the transient (t ≥ {rep['transient_s']:g} s), "
+                         f"equivalent within ±{margin_mm}: " + ", ".join(counts) + ".")
+    if n_eq == n_all:
+        lines.append(f"So the three are the same to within ±{margin_mm} on every scenario, "
+                     f"though {n_diff} of the {n_all} differences are detectable (Holm-adjusted "
+                     f"Wilcoxon p < {eq['alpha']:g}): equivalent at this margin, not identical.")
+    else:
+        lines.append(f"Equivalence within ±{margin_mm} holds in {n_eq} of the {n_all} "
+                     f"(scenario, pair) tests; {n_diff} of the {n_all} differences are "
+                     f"detectable (Holm-adjusted Wilcoxon p < {eq['alpha']:g}).")
+    lines.append(f"These hold {_defaults_clause(rep)}.  What adaptation does at other plants, "
+                 "SGD rate readings, initial gains and pose-filter noise is the regime study's "
+                 f"question (`analysis/regimes.py`, section \"{REGIMES_SECTION}\").")
+    return ["  ".join(lines), ""]
 
 
 def _order(names) -> str:
@@ -411,7 +543,7 @@ def _paired_table(rep: dict) -> list[str]:
 
 def _ranking_section(rep: dict) -> str:
     lines = ["## Does the paper's ranking appear?", ""]
-    lines += _verdict(rep) + _tie_aware(rep) + _adaptation(rep) + _near_ties(rep)
+    lines += _verdict(rep) + _tie_aware(rep) + _adaptation(rep) + _equivalence(rep)
     lines += _orders(rep) + _tail_table(rep) + _paired_table(rep)
     return "\n".join(lines)
 
@@ -460,12 +592,35 @@ def _figures(rep: dict) -> list[str]:
     return lines
 
 
+def _feed_forward(rep: dict) -> list[str]:
+    """Which controller has the lowest mean position RMSE without and with feed-forward."""
+    ff = rep.get("feed_forward_best")
+    if not ff:
+        return []
+    family = sorted({n for d in ff.values() for n in d["with"]["on_variant"]},
+                    key=controllers.NAMES.index)  # fmt: skip
+    count = {k: sum(d[k]["best"] in family for d in ff.values()) for k in ("without", "with")}
+
+    def bests(key: str) -> str:
+        return ", ".join(f"{sc} {controllers.label(d[key]['best'])} ({fmt(d[key]['mean'])} m)"
+                         for sc, d in ff.items())  # fmt: skip
+
+    return [f"**Feed-forward.** Lowest mean position RMSE of the {len(controllers.NAMES)} "
+            f"controllers per scenario, without the `feed-forward` variant: {bests('without')}; "
+            f"with it (the controllers it applies to, "
+            f"{', '.join(controllers.label(n) for n in family)}, on their feed-forward runs, the "
+            f"others on their default runs): {bests('with')}.  The PID family has the lowest "
+            f"mean in {count['with']} of {len(ff)} scenarios with feed-forward and in "
+            f"{count['without']} of {len(ff)} without.", ""]  # fmt: skip
+
+
 def _ablations_section(rep: dict) -> str:
     lines = ["## Ablations and sensitivities", "",
              "Position RMSE, mean ± std over seeds, per variant (— : not applicable):", ""]
     variants = ["default", *rep["variants"]]
     for sc, entry in rep["scenarios"].items():
         lines += [f"**{sc}**", ""] + _ablation_table(entry, variants)
+    lines += _feed_forward(rep)
     lines += ["Variants:", ""] + [f"- `{k}`: {v}" for k, v in rep["variants"].items()]
     if rep.get("divergences"):
         lines += ["", f"Runs that diverged: {len(rep['divergences'])}."]
