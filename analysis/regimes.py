@@ -367,11 +367,13 @@ def notes(record: dict) -> list[str]:
         f"The indirect scheme pays (IAPID significantly better than both APID and the fixed PID) "
         f"in {len(pays)} of {v['cells']} cells; by mechanism: {_by(pays, 'mechanism')}; by SGD "
         f"rate: {_by(pays, 'rate')}; by initial gains: {_by(pays, 'gains')}."
-        + (f"  In {len(apid_div)} of them APID diverged in some seeds (IAPID in none of those "
-           "seeds' cells): there IAPID pays by staying stable where the model-Jacobian step does "
-           "not." if apid_div and all(c["arms"]["iapid-nn-dekf"]["diverged"] == 0
-                                      for c in apid_div) else
-           f"  In {len(apid_div)} of them APID diverged in some seeds." if apid_div else ""),
+        + (f"  In {len(apid_div)} of them APID diverged "
+           f"({sum(c['arms']['adaptive-pid']['diverged'] for c in apid_div)} of their "
+           f"{sum(c['arms']['adaptive-pid']['n'] for c in apid_div)} runs) and IAPID in "
+           f"none: there IAPID pays by staying stable where the model-Jacobian step does not."
+           if apid_div and all(c["arms"]["iapid-nn-dekf"]["diverged"] == 0 for c in apid_div)
+           else f"  In {len(apid_div)} of them APID diverged in some seeds." if apid_div
+           else ""),
         f"Where IAPID is worse than APID ({len(worse)} cells), by SGD rate: {_by(worse, 'rate')}; "
         f"median relative difference IAPID vs APID over those cells "
         f"{_pct(_median(c['tests'][ia]['rel_diff'] for c in worse))}.",
@@ -395,12 +397,15 @@ def notes(record: dict) -> list[str]:
         "Lowest mean per cell: " + ", ".join(f"{controllers.label(a)} {k}"
                                              for a, k in v["best_arm"].items() if k) + ".",
     ]  # fmt: skip
-    best = sorted(pays, key=lambda c: c["tests"][ia]["rel_diff"])[:3]
+    stable = [c for c in pays if all(c["arms"][a]["diverged"] == 0
+                                     for a in ("iapid-nn-dekf", "adaptive-pid"))]
+    best = sorted(stable, key=lambda c: c["tests"][ia]["rel_diff"])[:3]
     if best:
-        out.append("Largest gains of IAPID over APID: " + "; ".join(
-            f"{_cell_name(c)} ({_pct(c['tests'][ia]['rel_diff'])}, 95 % CI "
-            f"[{1e3 * c['tests'][ia]['ci_low']:.2f}, {1e3 * c['tests'][ia]['ci_high']:.2f}] mm)"
-            for c in best) + ".")  # fmt: skip
+        out.append("Largest gains of IAPID over APID where neither diverged: " + "; ".join(
+            f"{_cell_name(c)} ({_pct(t['rel_diff'])}, difference of the means "
+            f"{1e3 * t['mean_diff']:.2f} mm, 95 % CI [{1e3 * t['ci_low']:.2f}, "
+            f"{1e3 * t['ci_high']:.2f}] mm)"
+            for c, t in ((c, c["tests"][ia]) for c in best)) + ".")  # fmt: skip
     c = record["cost"]
     out.append(f"Cost: {c['runs']:,} runs ({c['runs_this_time']:,} this time) in "
                f"{c['seconds']:.0f} s on {c['engine']}.")
