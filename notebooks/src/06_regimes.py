@@ -57,7 +57,9 @@ for rate in ("x1", "x100"):
 # The committed record of the regime study (`paper/results/regimes.json`), for this mechanism
 # and gains: which arm has the lowest mean in each cell, and how IAPID compares with APID.
 # %%
-path = Path("paper/results/regimes.json")
+# The repository root: nbval runs a notebook in its own folder.
+root = next(d for d in (Path.cwd(), *Path.cwd().parents) if (d / "pyproject.toml").exists())
+path = root / "paper" / "results" / "regimes.json"
 if path.exists():
     record = json.loads(path.read_text())
     for c in record["cells"]:
