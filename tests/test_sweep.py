@@ -48,6 +48,36 @@ def _rows(out):
     return sweep.read_rows(out).to_pandas().sort_values("job_id").reset_index(drop=True)
 
 
+@pytest.mark.parametrize("workers", [1, 2, 4])
+def test_batches_keep_the_order_and_shrink_toward_the_end(tmp_path, workers):
+    """Batches hold the jobs in order, once each; none is over ``seconds`` of estimated work
+    unless it is one job; each holds at most 1/(2 workers) of the work left when it starts
+    (guided scheduling), so the last ones are short."""
+    text = SPEC.replace("seeds = 2", "seeds = 40")
+    spec = sweep.load_spec(_spec(tmp_path, text))
+    costs = {("pid", False): 1e-3, ("pid", True): 1e-3, ("adaptive-pid", False): 2e-3,
+             ("adaptive-pid", True): 2e-3, ("backstepping", False): 5e-4,
+             ("backstepping", True): 5e-4}  # fmt: skip
+    todo = list(range(3, spec.n_jobs, 2))
+
+    def cost(j):
+        point, s, c, _ = spec.job(j)
+        sc = spec.runs[point][s]
+        return sc.n_steps * costs[(spec.controllers[c], sc.plant.ideal)]
+
+    groups = sweep.batches(spec, todo, costs, 2.0, workers)
+    assert [j for g in groups for j in g] == todo
+    left = sum(map(cost, todo))
+    for g, after in zip(groups, groups[1:] + [None], strict=True):
+        work, limit = sum(map(cost, g)), min(2.0, left / (2 * workers))
+        assert len(g) == 1 or work <= limit + 1e-12
+        if after:  # a batch is closed only when its next job would pass the limit
+            assert work + cost(after[0]) > limit - 1e-12
+        left -= work
+    assert abs(left) < 1e-9
+    assert sum(map(cost, groups[-1])) <= sum(map(cost, todo)) / (2 * workers) / 4
+
+
 def test_jobs_are_the_nested_product_and_each_row_is_its_run(tmp_path):
     spec = sweep.load_spec(_spec(tmp_path))
     assert spec.n_jobs == 4 * 1 * 3 * 2 and len(spec.points) == 4
