@@ -445,10 +445,12 @@ def notes(rec: dict) -> list[str]:
         "python_control_overhead: copy_only_nlsys is an nlsys with the same state whose update "
         "only copies it, stepped the same way: python-control's own cost per step (including "
         "storing every state), which no kernel speed removes.",
-        "Monte-Carlo: run_jobs with worker processes (fork: workers inherit the parent's compiled "
-        "kernels, the parent is warm here); rows compared with the serial path field by field.",
-        "peak_rss_children_mb is the largest child's high-water mark, which counts the pages it "
-        "shares with the parent after fork: it is not memory added to the parent's.",
+        "Monte-Carlo: run_jobs on the engine (a Dask LocalCluster of worker processes, started "
+        "for each call: vs_workers and monte_carlo_1000_s include its start and stop, "
+        "which is why 2 workers can be slower than 1 on 100 runs); the workers load the "
+        "kernels from the disk cache the parent warmed; rows compared with the serial path field "
+        "by field.",
+        "peak_rss_children_mb is the largest child's high-water mark (the worker processes).",
         "Absolute wall times depend on other load on the shared machine (machine.load_average_*).",
         "sweep: wmr sweep over seeds of the lemniscate, one controller at a time, on the serial "
         "engine, a Dask LocalCluster of 2 worker processes and a loopback scheduler with 2 worker "
