@@ -9,6 +9,7 @@ and the kernels are warm, as a long sweep spends nearly all its time).
 from __future__ import annotations
 
 import tempfile
+import time
 from pathlib import Path
 
 from wmr import study, sweep
@@ -59,6 +60,38 @@ def task_cost(address: str, tasks: int = 500) -> float:
         return (time.perf_counter() - t0) / tasks
 
 
+def _process_cpu(procs) -> float:
+    total = 0.0
+    for p in procs:
+        try:
+            t = p.cpu_times()
+            total += t.user + t.system
+        except Exception:  # noqa: BLE001 - a process gone meanwhile adds nothing
+            pass
+    return total
+
+
+def idle_cost(workers: int = 2, seconds: float = 5.0) -> dict:
+    """CPU used by an idle ``LocalCluster`` of ``workers`` processes over ``seconds``, in cores:
+    the driver (which hosts the scheduler, the nannies and the client) and the workers (their
+    event loops, heartbeats, memory monitor).  A fixed cost of the machinery, whatever the
+    sweep: on a machine of few cores a visible share of its capacity."""
+    import psutil  # a dependency of distributed
+
+    with study.engine(workers) as eng:
+        time.sleep(1.0)  # past the start-up
+        me = psutil.Process()
+        kids = [p for p in me.children(recursive=True)
+                if "resource_tracker" not in " ".join(p.cmdline())]  # fmt: skip
+        d0, w0, t0 = _process_cpu([me]), _process_cpu(kids), time.perf_counter()
+        time.sleep(seconds)
+        wall = time.perf_counter() - t0
+        driver, work = (_process_cpu([me]) - d0) / wall, (_process_cpu(kids) - w0) / wall
+        name = eng.name
+    return {"engine": name, "seconds": seconds, "driver_cores": driver, "worker_cores": work,
+            "cores": driver + work, "share_of_machine": (driver + work) / workers}
+
+
 def throughput(controllers=("iapid-nn-dekf", "pid"), workers: int = 2, quick: bool = False,
                repeats: int = 2) -> dict:  # fmt: skip
     """Runs/s of the serial engine, a LocalCluster of ``workers`` and a loopback scheduler with
@@ -91,6 +124,7 @@ def throughput(controllers=("iapid-nn-dekf", "pid"), workers: int = 2, quick: bo
                     "rows_equal": bool(rows[0].equals(rows[1]) and rows[0].equals(rows[2])),
                 }  # fmt: skip
             out["task_seconds"] = task_cost(cluster.address)
+    out["local_idle"] = idle_cost(workers, 2.0 if quick else 5.0)
     per = out["controllers"].values()
     out["local"] = {"efficiency": min(v["local_efficiency"] for v in per)}
     out["dask"] = {"efficiency": min(v["dask_efficiency"] for v in per)}
@@ -137,6 +171,13 @@ def scaling_paragraph(rec: dict) -> str:
         f"rate; the PID at {pid['local_runs_per_s']:.0f} and {pid['dask_runs_per_s']:.0f} runs/s "
         f"(efficiencies {pid['local_efficiency']:.2f} and {pid['dask_efficiency']:.2f}).  A task "
         f"of the engine costs {1e3 * per_task:.1f} ms when it does nothing.")
+    idle = s.get("local_idle")
+    if idle:
+        text += (f"  An idle local cluster of {w} workers uses {100 * idle['cores']:.1f} % of a "
+                 f"core ({100 * idle['driver_cores']:.1f} % in the driver, which hosts the "
+                 f"scheduler and the nannies; {100 * idle['worker_cores']:.1f} % in the workers' "
+                 f"event loops): {100 * idle['share_of_machine']:.1f} % of this machine before "
+                 "any run, a fixed cost that a machine of many cores does not notice.")
     if large:
         text += (f"  A sweep of {large['runs']:,} {large['controller']} runs of "
                  f"{large['steps_per_run']:,} steps took {large['seconds']:.0f} s "
