@@ -19,7 +19,7 @@ from wmr._jit import njit
 from wmr.controllers import iapid_nn_dekf
 
 # the Cholesky helpers of the library's weight update, shared so the floor uses the same ones
-from wmr.ekf import _cholesky, _cholesky_solve_rows, weight_update, weight_update_reference
+from wmr.ekf import cholesky, cholesky_solve_rows, weight_update, weight_update_reference
 
 __all__ = [
     "SUBJECT",
@@ -96,8 +96,8 @@ def floor_update(theta, P, H, innovation, q_diag, R, work, specialise=True):
                 acc += HP[a, j] * H[b, j]
             S[a, b] += acc
     L = np.zeros((m, m))
-    _cholesky(S, L)
-    _cholesky_solve_rows(L, HP, Kt)  # K^T = S^-1 H P
+    cholesky(S, L)
+    cholesky_solve_rows(L, HP, Kt)  # K^T = S^-1 H P
     for a in range(m):
         g = innovation[a]
         for j in range(n):

@@ -32,6 +32,8 @@ __all__ = [
     "pose_predict",
     "pose_update",
     "nees",
+    "cholesky",
+    "cholesky_solve_rows",
 ]
 
 
@@ -108,10 +110,10 @@ def joseph_update(x, P, H, innovation, R, work):
             S[r, s] = v
             S[s, r] = v
     L = np.zeros((m, m))
-    if not _cholesky(S, L):
+    if not cholesky(S, L):
         return np.nan
     # K^T = S^{-1} H P, by forward and back substitution with L L^T = S
-    _cholesky_solve_rows(L, HP, Kt)
+    cholesky_solve_rows(L, HP, Kt)
     # D^T = (S K^T) / 2 - H P; S K^T equals H P only up to round-off, and that is the point
     for r in range(m):
         out = Dt[r]
@@ -207,7 +209,7 @@ def _symmetric_rank_update(P, Kt, Dt):
 
 
 @njit
-def _cholesky(A, L):
+def cholesky(A, L):
     """Write the lower Cholesky factor of ``A`` (lower triangle read) into ``L``.
 
     Returns False (with ``L`` partly written) if a pivot is not positive or not finite.
@@ -230,7 +232,7 @@ def _cholesky(A, L):
 
 
 @njit
-def _cholesky_solve_rows(L, B, X):
+def cholesky_solve_rows(L, B, X):
     """``X = (L L^T)^{-1} B`` for ``B`` (m, n), by row-wise forward then back substitution."""
     m, n = B.shape
     for r in range(m):

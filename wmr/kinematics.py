@@ -35,6 +35,7 @@ __all__ = [
     "step_jacobians",
     "rotation",
     "tracking_error",
+    "sinc_and_derivative",
 ]
 
 EXACT, EULER, RK4 = 0, 1, 2
@@ -84,7 +85,7 @@ def input_matrix(theta):
 
 
 @njit
-def _sinc_and_derivative(a):
+def sinc_and_derivative(a):
     """``s(a) = sin(a)/a`` and ``s'(a)``, by Taylor series near 0 (error < 1e-17 there)."""
     if abs(a) < 1e-4:
         a2 = a * a
@@ -143,7 +144,7 @@ def step(q, u, dt, integrator=EXACT):
     out = np.empty(3)
     if integrator == EXACT:
         a = 0.5 * w * dt
-        s, _ = _sinc_and_derivative(a)
+        s, _ = sinc_and_derivative(a)
         phi = q[2] + a
         out[0] = q[0] + v * dt * s * math.cos(phi)
         out[1] = q[1] + v * dt * s * math.sin(phi)
@@ -203,7 +204,7 @@ def step_jacobians(q, u, dt, integrator=EXACT):
     G = np.zeros((3, 2))
     if integrator == EXACT:
         a = 0.5 * w * dt
-        s, ds = _sinc_and_derivative(a)
+        s, ds = sinc_and_derivative(a)
         phi = q[2] + a
         c = math.cos(phi)
         sn = math.sin(phi)

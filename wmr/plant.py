@@ -46,7 +46,7 @@ import math
 import numpy as np
 
 from wmr._jit import njit
-from wmr.kinematics import _sinc_and_derivative
+from wmr.kinematics import sinc_and_derivative
 
 __all__ = [
     "KINEMATIC",
@@ -209,7 +209,7 @@ def crab_arc(q, v, vs, w, dt):
     (``vs = 0`` is the unicycle's exact arc of ``wmr.kinematics.step``).
     """
     a = 0.5 * w * dt
-    s, _ = _sinc_and_derivative(a)
+    s, _ = sinc_and_derivative(a)
     phi = q[2] + a
     c = math.cos(phi)
     sn = math.sin(phi)
