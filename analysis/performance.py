@@ -157,7 +157,7 @@ def check(record: dict) -> None:
 
 def render(record: dict) -> str:
     """The report's section: the notes, the table and the figure."""
-    return common.section(TITLE, notes(record), table(record), [FIGURE])
+    return common.section(TITLE, notes(record), tables(record), [FIGURE])
 
 
 # ---------------------------------------------------------------------------------------------
@@ -541,10 +541,16 @@ def _python_control_table(rec: dict) -> list[str]:
 
 
 def table(rec: dict) -> str:
-    """``tables/performance.md``: targets, costs, python-control, sizes, workers, memory, notes."""
+    """``tables/performance.md``: a title, the tables (:func:`tables`) and the notes."""
+    notes_md = [f"- {note}" for note in notes(rec)]
+    return "\n".join(["# Performance", "", tables(rec).rstrip(), "", *notes_md]) + "\n"
+
+
+def tables(rec: dict) -> str:
+    """The machine, targets, costs, python-control, sizes, workers and memory (the report's
+    section puts the notes above them, so they are not repeated here)."""
     mach = rec["machine"]
     lines = [
-        "# Performance (issue 6)", "",
         f"Machine: {mach['cpu_model']}, {mach['usable_cpus']} usable CPUs; numba {mach['numba']}; "
         f"load average {mach['load_average_start'][0]:.2f}"
         f" -> {mach['load_average_end'][0]:.2f}; quick = {rec['quick']}.", "",
@@ -565,7 +571,6 @@ def table(rec: dict) -> str:
               f"{rec['peak_rss_children_mb']:.0f} MB).  A study row takes "
               f"{rec['rows_bytes_per_run']:.0f} B pickled; a kept trajectory "
               f"{rec['trajectory_mb_per_run']:.2f} MB per run.", ""]  # fmt: skip
-    lines += [f"- {note}" for note in notes(rec)]
     return "\n".join(lines) + "\n"
 
 
