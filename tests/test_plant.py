@@ -175,9 +175,12 @@ def test_rmse_is_converged_under_tenfold_refinement(controller, section, lemnisc
     """DESIGN §3.3: refining the plant's integration 10x moves a run's RMSE by < 1e-6 (relative)."""
     sc = scn.loads(Path(scn.builtin("lemniscate")).read_text() + section)
     coarse = simulate(sc, controller, 0, keep_trajectory=False).rmse
-    monkeypatch.setattr(plant, "SUBSTEP_FRACTION", plant.SUBSTEP_FRACTION / 10)
-    assert plant.substeps(np.array(sc.plant.row()), plant.KINEMATIC, sc.dt) >= 1
+    n_coarse = plant.arrays(sc.plant, sc.dt)[0][:, plant.N_SUB]
+    default = plant.substeps
+    monkeypatch.setattr(plant, "substeps", lambda row, model, dt: 10 * default(row, model, dt))
+    assert np.array_equal(plant.arrays(sc.plant, sc.dt)[0][:, plant.N_SUB], 10 * n_coarse)
     fine = simulate(sc, controller, 0, keep_trajectory=False).rmse
+    assert coarse != fine  # the finer integration did run
     for key in ("x", "y", "theta", "position"):
         assert abs(coarse[key] - fine[key]) < 1e-6 * fine[key], (key, coarse, fine)
 
