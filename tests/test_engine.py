@@ -70,12 +70,20 @@ def _malloc_trim():
     return os.environ.get("MALLOC_TRIM_THRESHOLD_")
 
 
-def test_local_cluster_workers_keep_glibc_malloc_defaults():
+def _profiling():
+    import dask
+
+    return dask.config.get("distributed.worker.profile.enabled")
+
+
+def test_local_cluster_workers_keep_glibc_malloc_defaults_and_run_quiet():
     """Dask's nanny would set MALLOC_TRIM_THRESHOLD_ in its workers (numpy-heavy set-up 3-4x
-    slower there); the engine's LocalCluster leaves it unset, and does not set it here either."""
+    slower there); the engine's LocalCluster leaves it unset, and does not set it here either;
+    its workers run without the statistical profiler (study.LOCAL_CLUSTER_CONFIG)."""
     before = _malloc_trim()
     with study.engine(2) as eng:
         assert set(eng.client.run(_malloc_trim).values()) == {None}
+        assert set(eng.client.run(_profiling).values()) == {False}
     assert _malloc_trim() == before
 
 
