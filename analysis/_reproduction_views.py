@@ -72,8 +72,9 @@ def _adaptation(rep: dict) -> list[str]:
     return ["**Gain adaptation at the suite's defaults.** Over a run (seed 0, every scenario) "
             "SGD moves the proportional and integral gains by at most "
             + ", ".join(f"{g} {100 * v:.1f} %" for g, v in rel.items())
-            + f"; the derivative gains start at 0 and reach {kd:.3f} (E5d: measurement "
-            "noise drives them up).", ""]  # fmt: skip
+            + f"; the derivative gains start at 0 and reach {kd:.3f} (the reproduction notes, "
+            "E5d, attribute this to measurement noise; not measured in this study).",
+            ""]  # fmt: skip
 
 
 def _mm(x: float) -> str:

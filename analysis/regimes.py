@@ -341,6 +341,36 @@ def _median_of(cs, arm: str, key: str) -> str:
     return common.fmt(_median(c["arms"][arm].get(key) for c in cs), 3)
 
 
+def _where_each_arm_wins(cs: list[dict]) -> str:
+    """For each arm with the lowest mean somewhere: where (mechanisms, trajectories) and by how
+    much it leads the next arm (relative to that arm's mean: median and range over its cells;
+    paired tests with intervals exist for the PID family's pairs only, in the cell table)."""
+    parts = []
+    for a in ARMS:
+        won = [c for c in cs if c["best"] == a]
+        if not won:
+            continue
+        leads = []
+        for c in won:
+            m = {b: x["tail_mean"] for b, x in c["arms"].items() if x["tail_mean"] is not None}
+            others = [x for b, x in m.items() if b != a]  # an arm that always diverged: none
+            if a in m and others:
+                leads.append((min(others) - m[a]) / min(others))
+
+        def where(key, won=won):
+            counts = {}
+            for c in won:
+                counts[c[key]] = counts.get(c[key], 0) + 1
+            return ", ".join(f"{k} {n}" for k, n in sorted(counts.items(), key=lambda kv: -kv[1]))
+
+        lead = (f", ahead of the next arm by a median {100 * float(np.median(leads)):.1f} % of "
+                f"its mean (range {100 * min(leads):.1f}-{100 * max(leads):.1f} %)"
+                if leads else "")  # fmt: skip
+        parts.append(f"{controllers.label(a)} in {len(won)} cells (mechanism: {where('mechanism')};"
+                     f" trajectory: {where('trajectory')}){lead}")
+    return "Where each arm has the lowest mean: " + "; ".join(parts) + "."
+
+
 def _cell_name(c: dict) -> str:
     return (f"{c['mechanism']} / {c['trajectory']} / rate {c['rate']} / {c['gains']} gains / "
             f"process noise {c['process_std']:g}")
@@ -396,6 +426,7 @@ def notes(record: dict) -> list[str]:
         f" against IAPID's {_median_of(cs, 'iapid-nn-dekf', 'jac_rel_error_median')}.",
         "Lowest mean per cell: " + ", ".join(f"{controllers.label(a)} {k}"
                                              for a, k in v["best_arm"].items() if k) + ".",
+        _where_each_arm_wins(cs),
     ]  # fmt: skip
     stable = [c for c in pays if all(c["arms"][a]["diverged"] == 0
                                      for a in ("iapid-nn-dekf", "adaptive-pid"))]

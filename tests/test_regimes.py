@@ -28,6 +28,24 @@ def test_classification_of_iapid_vs_apid(tost, sig, diff, kind):
     assert regimes.classify(_cell(tost, sig, diff)) == kind
 
 
+def test_where_each_arm_wins_names_its_cells_and_lead():
+    """Backstepping lowest in two cells, 20 % and 50 % ahead of the next arm (an arm that
+    always diverged, tail_mean None, is left out); APID lowest in one, 10 % ahead."""
+    def cell(mech, means):
+        arms = {a: {"tail_mean": means.get(a)} for a in regimes.ARMS}
+        best = min((a for a in means if means[a] is not None), key=means.get)
+        return {"mechanism": mech, "trajectory": "lemniscate", "arms": arms, "best": best}
+
+    cs = [cell("slip", {"backstepping": 0.8, "pid": 1.0, "adaptive-pid": None}),
+          cell("slip", {"backstepping": 1.0, "pid": 2.0}),
+          cell("ideal", {"adaptive-pid": 0.9, "pid": 1.0, "backstepping": 1.5})]
+    text = regimes._where_each_arm_wins(cs)
+    assert "BSC in 2 cells (mechanism: slip 2; trajectory: lemniscate 2), ahead of the next " \
+           "arm by a median 35.0 % of its mean (range 20.0-50.0 %)" in text
+    assert "APID in 1 cells (mechanism: ideal 1; trajectory: lemniscate 1), ahead of the " \
+           "next arm by a median 10.0 %" in text
+
+
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
     out = tmp_path_factory.mktemp("regimes")
