@@ -9,13 +9,17 @@ committed record against the committed scenario files.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
+import json
 import math
+import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from analysis import _calibration_methods as methods
 from analysis import _calibration_prior as prior
 from wmr import scenario as scn
 from wmr.sim import simulate
@@ -150,3 +154,315 @@ def test_tolerance_is_rounding_plus_seed_spread_of_one_run():
     sd = np.full(36, 0.01)
     tol = prior.tolerance(sd, 4)
     assert tol == pytest.approx(prior.ROUNDING + prior.Z_SEED * 0.01 * math.sqrt(1.25))
+
+
+# ---------------------------------------------------------------------------------------------
+# Step 3: the methods (no runs)
+
+
+def test_morris_design_moves_each_setting_once_by_delta():
+    u, order, up, delta = methods.morris_design(5, 7, levels=4, seed=3)
+    assert u.shape == (7, 6, 5) and delta == pytest.approx(2 / 3)
+    assert np.all((u >= 0) & (u <= 1 + 1e-12))
+    grid = np.arange(4) / 3
+    assert np.all(np.min(np.abs(u[..., None] - grid), axis=-1) < 1e-12)  # on the grid
+    for t in range(7):
+        steps = np.diff(u[t], axis=0)  # (k, k): row j moves setting order[t, j] only
+        for j, i in enumerate(order[t]):
+            expected = np.zeros(5)
+            expected[i] = delta if up[t, i] else -delta
+            np.testing.assert_allclose(steps[j], expected, atol=1e-12)
+
+
+def test_morris_effects_of_a_linear_function_are_its_coefficients():
+    a = np.array([3.0, -1.0, 0.0, 0.5])
+    u, order, up, delta = methods.morris_design(4, 6, seed=0)
+    y = (u @ a)[..., None]  # (r, k + 1, 1)
+    eff = methods.morris_effects(y, order, up, delta)
+    np.testing.assert_allclose(eff["mu"][:, 0], a, atol=1e-12)
+    np.testing.assert_allclose(eff["mu_star"][:, 0], np.abs(a), atol=1e-12)
+    np.testing.assert_allclose(eff["sigma"][:, 0], 0.0, atol=1e-12)
+    # an interaction u0 u1 shows as spread (sigma > 0) of both and none of the others
+    y2 = (u[..., 0] * u[..., 1])[..., None]
+    eff2 = methods.morris_effects(y2, order, up, delta)
+    assert eff2["sigma"][0, 0] > 0 and eff2["sigma"][1, 0] > 0
+    assert eff2["mu_star"][2, 0] == 0 and eff2["mu_star"][3, 0] == 0
+
+
+def _ishigami(x):  # x in [0, 1)^3 -> the Ishigami function on [-pi, pi)^3 (a = 7, b = 0.1)
+    z = -np.pi + 2 * np.pi * x
+    return np.sin(z[..., 0]) + 7 * np.sin(z[..., 1]) ** 2 + 0.1 * z[..., 2] ** 4 * np.sin(z[..., 0])
+
+
+def test_sobol_indices_match_scipy_and_the_ishigami_closed_form():
+    from scipy.stats import sobol_indices
+
+    A, B = methods.sobol_design(3, 12, seed=1)
+    AB = methods.ab_matrices(A, B)
+    assert np.array_equal(AB[1][:, [0, 2]], A[:, [0, 2]]) and np.array_equal(AB[1][:, 1], B[:, 1])
+    f_A, f_B = _ishigami(A)[None], _ishigami(B)[None]
+    f_AB = _ishigami(AB)[:, None, :]
+    ours = methods.sobol_indices(f_A, f_B, f_AB, n_resamples=200)
+    ref = sobol_indices(func={"f_A": f_A, "f_B": f_B, "f_AB": f_AB}, n=len(A))
+    np.testing.assert_allclose(ours["first"][0], ref.first_order, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(ours["total"][0], ref.total_order, rtol=1e-12, atol=1e-14)
+    # closed form (Ishigami & Homma 1990): V = a^2/8 + b pi^4/5 + b^2 pi^8/18 + 1/2
+    a, b = 7.0, 0.1
+    V = a**2 / 8 + b * np.pi**4 / 5 + b**2 * np.pi**8 / 18 + 0.5
+    V1 = 0.5 * (1 + b * np.pi**4 / 5) ** 2
+    V2 = a**2 / 8
+    V13 = b**2 * np.pi**8 * (1 / 18 - 1 / 50)
+    exact_first = np.array([V1, V2, 0.0]) / V
+    exact_total = np.array([V1 + V13, V2, V13]) / V
+    # 4096 rows: the estimators' error is a few 0.01 (their own intervals cover it)
+    np.testing.assert_allclose(ours["first"][0], exact_first, atol=0.04)
+    np.testing.assert_allclose(ours["total"][0], exact_total, atol=0.04)
+    assert np.all(ours["total_low"][0] <= exact_total + 0.01)
+    assert np.all(exact_total - 0.01 <= ours["total_high"][0])
+
+
+def test_kendall_tau_matches_scipy():
+    from scipy.stats import kendalltau
+
+    rng = np.random.default_rng(4)
+    ours = rng.random((50, 4))
+    paper = rng.random(4)
+    tau = methods.kendall_tau(ours, paper)
+    for i in range(50):
+        assert tau[i] == pytest.approx(kendalltau(ours[i], paper).statistic, abs=1e-12)
+
+
+def test_order_stats_at_the_paper_and_its_reverse():
+    same = np.broadcast_to(prior.PAPER, (10, 2, 36)).copy()
+    rec = methods.order_stats(same, prior.PAPER, prior.CONTROLLERS, prior.SCENARIOS, prior.AXES)
+    assert rec["all_nine"]["p"] == 1.0 and rec["kendall_tau"]["mean"] == pytest.approx(1.0)
+    assert rec["pairwise"]["iapid-nn-dekf < backstepping"]["p"] == 1.0
+    # reverse every order: 1/x reverses the ranking of positive numbers
+    rev = 1.0 / same
+    rec = methods.order_stats(rev, prior.PAPER, prior.CONTROLLERS, prior.SCENARIOS, prior.AXES)
+    assert rec["all_nine"]["p"] == 0.0 and rec["kendall_tau"]["mean"] == pytest.approx(-1.0)
+    assert rec["iapid_first_any"]["p"] == 0.0  # IAPID is last everywhere
+    pw = rec["pairwise"]["iapid-nn-dekf < adaptive-pid"]
+    assert pw["p"] == 0.0 and pw["paper"] == 1.0
+
+
+def test_bootstrap_interval_is_seeded_and_covers_the_mean():
+    x = np.random.default_rng(0).normal(1.0, 0.1, 400)
+    lo, hi = methods.bootstrap_mean(x, seed=3)
+    assert (lo, hi) == methods.bootstrap_mean(x, seed=3)
+    se = x.std(ddof=1) / math.sqrt(len(x))
+    assert lo < x.mean() < hi
+    assert hi - lo == pytest.approx(2 * 1.96 * se, rel=0.15)  # the normal closed form
+
+
+# ---------------------------------------------------------------------------------------------
+# The store: resumable, deterministic
+
+
+def _small_tasks(n=3):
+    from analysis import _calibration_stages as stages
+
+    space = stages.Space.of(stages.QUICK, ("bsc_k1", "noise_std"))
+    return [dataclasses.replace(t, cases=tuple(c for c in t.cases if c[1] == "backstepping"))
+            for t in (space.task(u, (0, 1)) for u in np.linspace(0.1, 0.9, 2 * n).reshape(n, 2))]
+
+
+def test_store_resumes_and_refuses_another_version(tmp_path):
+    from analysis._calibration_store import Evaluator, read_store, run_task
+
+    tasks = _small_tasks()
+    with Evaluator(tmp_path, "abc", workers=1, progress=False) as ev:
+        first = ev.evaluate(tasks[:2])
+        assert ev.runs_this_time == 2 * 2 * 3
+    stored = read_store(tmp_path)
+    assert set(stored) == {t.key for t in tasks[:2]}
+    with Evaluator(tmp_path, "abc", workers=1, progress=False) as ev:
+        again = ev.evaluate(tasks)  # two from the store, one run now
+        assert ev.runs_this_time == 2 * 3 and ev.loaded == 2
+    for a, b in zip(first, again[:2], strict=True):
+        assert np.array_equal(a, b, equal_nan=True)
+    # the store's rows are the runs themselves
+    key, direct = run_task(tasks[2])
+    assert np.array_equal(again[2], direct, equal_nan=True)
+    assert np.all(direct[..., -1] == 0) and direct.shape == (2, 3, 7)
+    with pytest.raises(ValueError, match="another version"):
+        Evaluator(tmp_path, "xyz", workers=1)
+
+
+def test_an_error_is_a_row_not_a_crash():
+    from analysis._calibration_store import ERROR, Task, run_task
+
+    sc = scn.load(scn.builtin("sinusoid"))
+    bad = Task("k", ((sc, "backstepping", "not settings"),), (0,))
+    _, arr = run_task(bad)
+    assert arr[0, 0, -1] == ERROR and np.all(np.isnan(arr[0, 0, :-1]))
+
+
+# ---------------------------------------------------------------------------------------------
+# Fitted scenarios as TOML, fair tuning's pieces
+
+
+def test_toml_text_round_trips():
+    from analysis.calibration import toml_text
+
+    doc = {"name": "x", "dt": 0.01, "flag": True, "pose": [0.0, -0.7, 1.5],
+           "reference": {"kind": "lemniscate", "size": 2.0},
+           "plant": {"change": [{"at": 15.0, "slip": 0.1}, {"at": 20.0, "slip": 0.0}]},
+           "controllers": {"adaptive-pid": {"gains": [1.0, 2.0], "gradient": "exact"}}}
+    assert tomllib.loads(toml_text(doc, "a header\nof two lines")) == doc
+
+
+def test_fit_scenarios_are_the_settings(tmp_path):
+    from analysis.calibration import fit_scenarios
+
+    v = {**prior.defaults(), "perturbation": "slip", "perturbation_size": 0.3, "bsc_k2": 20.0,
+         "pid_scale_w": 0.4, "saturation": 2.0, "iapid_hidden": 15}  # fmt: skip
+    files = fit_scenarios(v, 0.5, tmp_path)
+    assert files == [f"{n}.toml" for n in prior.SCENARIOS]
+    for name in prior.SCENARIOS:
+        sc = scn.load(tmp_path / f"{name}.toml")
+        (ref, *_), = [c for c in prior.cases(v, scenarios=(name,), names=("backstepping",))]
+        assert sc.name == f"paper-fit-{name}"
+        assert dataclasses.replace(sc, name=ref.name, source=ref.source, controllers={}) == \
+            dataclasses.replace(ref, controllers={})
+        for c in prior.CONTROLLERS:
+            assert sc.settings(c) == prior.settings(c, v)
+        assert "A FIT, not the suite's defaults" in (tmp_path / f"{name}.toml").read_text()
+
+
+def test_pareto_front_is_the_non_dominated_set():
+    from analysis._calibration_fair import pareto_front
+
+    rng = np.random.default_rng(2)
+    cost, effort = rng.random(60), rng.random(60)
+    front = set(pareto_front(cost, effort).tolist())
+    brute = {i for i in range(60) if not any(cost[j] <= cost[i] and effort[j] <= effort[i]
+                                             and (cost[j], effort[j]) != (cost[i], effort[i])
+                                             for j in range(60))}  # fmt: skip
+    assert front == brute
+
+
+def test_fair_tuning_gains_span_their_ranges():
+    from analysis._calibration_fair import FREE_GAINS, gains_at
+
+    for c, spec in FREE_GAINS.items():
+        lo, hi = gains_at(c, [0.0] * len(spec)), gains_at(c, [1.0] * len(spec))
+        assert lo == pytest.approx([g[1] for g in spec])
+        assert hi == pytest.approx([g[2] for g in spec])
+        mid = gains_at(c, [0.5] * len(spec))
+        for (_, a, b, log), m in zip(spec, mid, strict=True):
+            assert m == pytest.approx(math.sqrt(a * b) if log else (a + b) / 2)
+        # each gain set is valid for the controller
+        from wmr import controllers
+
+        controllers.get(c).Settings(gains=mid)
+
+
+# ---------------------------------------------------------------------------------------------
+# The study: a quick run (every stage, a few points, short runs) and the committed record
+
+
+REQUIRED = ("prior", "points", "tolerance", "feasible", "best_fit", "p_paper_order",
+            "sensitivity", "fair_tuning")  # fmt: skip
+
+
+def _points_agree(record: dict, out: Path) -> None:
+    """The points file beside a record is the one it summarises."""
+    from analysis.calibration import read_points
+
+    pts = read_points(out, record)
+    n = record["points"]["n"]
+    assert len(pts["point"]) == n and pts["point"] == [float(i) for i in range(n)]
+    assert list(pts) == record["points"]["columns"]
+    hist = np.bincount(np.array(pts["n_within"], dtype=int), minlength=37).tolist()
+    assert hist == record["points"]["n_within_histogram"]
+    assert [i for i, k in enumerate(pts["n_within"]) if k == 36] == record["feasible"]["points"]
+    assert min(pts["rms_log_ratio"]) == pytest.approx(record["points"]["min_rms_log_ratio"],
+                                                      rel=1e-6)  # fmt: skip
+    best = record["feasible"]["best_point"]
+    assert pts["rms_log_ratio"][best["index"]] == pytest.approx(best["rms_log_ratio"], rel=1e-6)
+    for name in record["points"]["varied"]:
+        assert len(pts[name]) == n
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory):
+    from analysis import calibration
+
+    out = tmp_path_factory.mktemp("calibration")
+    return out, calibration.run(out, quick=True, workers=1, progress=False)
+
+
+def test_quick_study_is_whole_and_checks(quick):
+    from analysis import calibration
+
+    out, record = quick
+    calibration.check(record)
+    assert set(REQUIRED) <= set(record)
+    for name in record["figures"]:
+        assert (out / "figures" / name).stat().st_size > 10_000
+    assert (out / "tables" / "calibration.md").exists()
+    assert json.loads((out / "results" / "calibration.json").read_text()) == record
+    _points_agree(record, out)
+    # the fit's settings are the scenario files it wrote
+    for f in record["best_fit"]["scenario_files"]:
+        sc = scn.load(out / f)
+        assert sc.settings("backstepping").gains == tuple(
+            record["best_fit"]["settings"][k] for k in ("bsc_k1", "bsc_k2", "bsc_k3"))
+    # every controller had the same tuning budget
+    nfev = {t["nfev"] for t in record["fair_tuning"]["controllers"].values()}
+    assert nfev == {record["fair_tuning"]["budget"]["evaluations"]}
+    text = calibration.render(record)
+    for q in ("Does any plausible setting reproduce", "How close is the best fit",
+              "How likely is the paper's ranking", "Which unstated settings decide it",
+              "Who wins under fair tuning"):  # fmt: skip
+        assert q in text
+    assert "QUICK" in text
+
+
+def test_check_catches_an_inconsistent_record(quick):
+    import copy
+
+    from analysis import calibration
+
+    _, record = quick
+    bad = copy.deepcopy(record)
+    bad["best_fit"]["rms_log_ratio"] *= 0.5  # a summary that is not its residuals'
+    with pytest.raises(AssertionError):
+        calibration.check(bad)
+    bad = copy.deepcopy(record)
+    first = next(iter(bad["fair_tuning"]["controllers"].values()))
+    first["nfev"] += 1  # an unequal budget
+    with pytest.raises(AssertionError):
+        calibration.check(bad)
+
+
+COMMITTED = ROOT / "paper" / "results" / "calibration.json"
+
+
+@pytest.mark.skipif(not COMMITTED.exists(), reason="no committed calibration record")
+def test_committed_record_checks_and_its_files_agree():
+    from analysis import calibration
+
+    record = json.loads(COMMITTED.read_text())
+    assert record["level"] == "full"
+    calibration.check(record)
+    _points_agree(record, ROOT / "paper")
+    assert record["points"]["n"] >= 4096
+
+
+@pytest.mark.skipif(not COMMITTED.exists(), reason="no committed calibration record")
+def test_committed_fit_scenarios_reproduce_the_record():
+    """The shipped paper-fit scenarios are the fitted settings: running them gives the record's
+    per-seed numbers exactly (seeds 0 and 1)."""
+    record = json.loads(COMMITTED.read_text())
+    fit = record["best_fit"]
+    for i_seed, seed in enumerate(fit["seeds"][:2]):
+        ours = []
+        for f in fit["scenario_files"]:
+            sc = scn.load(ROOT / f)
+            assert sc.name.startswith("paper-fit-")
+            for c in prior.CONTROLLERS:
+                r = simulate(sc, c, seed, keep_trajectory=False)
+                ours += [r.rmse[a] if not r.diverged else prior.DIVERGED_RMSE for a in prior.AXES]
+        assert ours == fit["per_seed"][i_seed], seed
