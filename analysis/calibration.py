@@ -21,10 +21,11 @@ with their provenance, ``analysis._calibration_prior``), then asks:
 
 Nothing is tuned to make a controller win; the fit is a separate, labelled result.
 
-Commands: ``wmr analyze calibration`` (and ``wmr reproduce``) re-render the committed record;
-without one they compute it.  ``python -m analysis.calibration --full [--workers N]``
-recomputes it: about an hour of runs on two cores, in a resumable store under
-``$WMR_STORES`` (default ``~/.cache/wmr/stores``) named by the sources.
+Commands: ``wmr analyze calibration`` (and ``wmr reproduce``) re-render the committed record
+(``paper/results/calibration.json`` and its points file); without one they compute it.
+``python -m analysis.calibration --full [--workers N]`` recomputes it: about an hour and a half
+of runs on two cores, in a resumable store under ``$WMR_STORES`` (default
+``~/.cache/wmr/stores``) named by the sources.
 """
 
 from __future__ import annotations
@@ -197,8 +198,16 @@ def _feasible_json(des: dict) -> dict:
     cov = stages.coverage(des)
     lr = np.abs(np.log(des["mean"] / prior.PAPER))
     best = int(np.argmin(des["rms_log_ratio"]))
+    w = des["within"].reshape(-1, 3, 4, 3)  # point, scenario, controller, axis
     return {"count": int(np.sum(n_within == 36)),
             "points": [int(i) for i in np.flatnonzero(n_within == 36)],
+            "per_table": {s: int(np.sum(w[:, i].all(axis=(1, 2))))
+                          for i, s in enumerate(prior.SCENARIOS)},
+            "per_controller": {c: int(np.sum(w[:, :, j].all(axis=(1, 2))))
+                               for j, c in enumerate(prior.CONTROLLERS)},
+            "per_row": {f"{s}/{c}": int(np.sum(w[:, i, j].all(axis=1)))
+                        for i, s in enumerate(prior.SCENARIOS)
+                        for j, c in enumerate(prior.CONTROLLERS)},
             "best_n_within": int(n_within.max()),
             "numbers": cov,
             "never_reached": [n for n, c in cov.items() if c["n_reached"] == 0],
@@ -259,15 +268,35 @@ def compute(out: Path, quick: bool, workers: int | None, progress=None) -> dict:
             "fair_tuning": fair, "cost": cost}  # fmt: skip
 
 
+#: The repository's results (the committed record of the full study).
+COMMITTED = Path(__file__).resolve().parent.parent / "paper"
+
+
+def _committed(out: Path) -> tuple[Path, dict] | tuple[None, None]:
+    """A full record (and its points file) in ``out``, else the repository's committed one."""
+    for base in (out, COMMITTED):
+        rec = common.load_record(base, STEM)
+        if rec and rec.get("level") == "full" and (base / rec["points"]["file"]).exists():
+            return base, rec
+    return None, None
+
+
 def run(out, *, quick: bool = False, workers: int | None = None, full: bool = False,
         progress: bool | None = None) -> dict:  # fmt: skip
-    """The study into ``out``: ``quick`` a few points on short runs (tests); otherwise the
-    committed record is re-rendered (figures, table) unless there is none or ``full`` asks to
-    recompute it (about an hour on two cores; the store resumes)."""
+    """The study into ``out``: ``quick`` a few points on short runs (tests); ``full``
+    recomputes everything (about an hour and a half on two cores; the store resumes);
+    otherwise the full record in ``out`` or, failing that, the repository's committed one is
+    re-rendered (figures, table; ``wmr reproduce`` stays short), and only without any record is
+    the study computed."""
+    import shutil
+
     out = Path(out)
-    record = None if (quick or full) else common.load_record(out, STEM)
-    if record is None or record.get("level") != "full" and not quick:
+    base, record = (None, None) if (quick or full) else _committed(out)
+    if record is None:
         record = compute(out, quick, workers, progress)
+    elif base.resolve() != out.resolve():
+        (out / "results").mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(base / record["points"]["file"], out / record["points"]["file"])
     record["figures"] = figures.all_figures(record, read_points(out, record), out)
     common.write_record(out, STEM, record)
     common.write_table(out, STEM, table(record))
@@ -294,6 +323,8 @@ def check(record: dict) -> None:
     feas = record["feasible"]
     assert feas["count"] == len(feas["points"]) == hist[36]
     assert feas["best_n_within"] == max(k for k, c in enumerate(hist) if c)
+    for part in ("per_table", "per_controller", "per_row"):
+        assert all(k >= feas["count"] for k in feas[part].values()), part
     nums = feas["numbers"]
     assert list(nums) == list(prior.NUMBER_NAMES)
     assert feas["never_reached"] == [k for k, c in nums.items() if c["n_reached"] == 0]
@@ -356,7 +387,13 @@ def _answer_tables(r: dict) -> list[str]:
         f"{len(r['seeds'])} seeds each), {feas['count']} match all 36 numbers within their "
         f"tolerance; the best matches {feas['best_n_within']} of 36.  Loosening the test to a "
         "ratio band, all 36 lie within a factor " + ", ".join(
-            f"{f}: {k} points" for f, k in wf.items()) + ".",
+            f"{f}: {k} points" for f, k in wf.items()) + ".  Taken apart, the 12 numbers of "
+        "one table are matched at " + ", ".join(
+            f"{k} points ({s})" for s, k in feas["per_table"].items())
+        + "; the 9 numbers of one controller at " + ", ".join(
+            f"{k} ({controllers.label(c)})" for c, k in feas["per_controller"].items())
+        + (": one table or one controller's row alone is matched more often than all 36 "
+           "with shared settings." if max(feas["per_table"].values()) > feas["count"] else "."),
         "Numbers never reached within tolerance at any design point: "
         + (", ".join(_label(n) for n in feas["never_reached"]) or "none")
         + ".  Numbers outside the range the design spans: "
@@ -411,10 +448,14 @@ def _answer_sensitivity(r: dict) -> list[str]:
     conv = sob["convergence"]
     scr = r["screening"]
     fixed = [n for n in r["prior"] if not r["prior"][n].get("varied", True)]
+    weakest = min(scr["importance"], key=scr["importance"].get)
     return [
         "**Which unstated settings decide it?** Morris screening "
-        f"({scr['trajectories']} trajectories, {scr['points']} points) fixed "
-        f"{len(fixed)} inert settings ({', '.join(fixed) or 'none'}).  Largest total Sobol "
+        f"({scr['trajectories']} trajectories, {scr['points']} points; a setting is inert when "
+        f"its mu* stays below {scr['threshold']:g} of the largest for every output) fixed "
+        f"{len(fixed)} settings ({', '.join(fixed) or 'none'}); the weakest, {weakest}, still "
+        f"moves some output by {scr['importance'][weakest]:.2f} of the largest effect.  "
+        "Largest total Sobol "
         f"indices (N = {sob['N']['n']}; margins are log RMSE of X minus IAPID's): "
         + "; ".join(parts) + f".  Convergence: {conv['intervals_overlapping']} of "
         f"{conv['intervals']} intervals at N and N/2 overlap.",
