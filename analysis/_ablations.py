@@ -17,6 +17,7 @@ so a misspelt field cannot silently change nothing.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -24,7 +25,12 @@ from typing import Any
 from wmr import controllers
 from wmr.scenario import Scenario
 
-__all__ = ["Variant", "pose_source", "noise_scaled", "scaled", "pose_source_changes"]
+__all__ = ["Variant", "pose_source", "noise_scaled", "scaled", "pose_source_changes",
+           "CRITICAL_TOL", "backstepping_damping", "damping_name", "damping_phrase"]
+
+#: |zeta - 1| below which a loop is named critically damped: half the last digit of the two
+#: decimals zeta is printed with, so the name never contradicts the printed number.
+CRITICAL_TOL = 0.005
 
 
 def _fields(name: str) -> set[str]:
@@ -134,3 +140,53 @@ def noise_scaled(factor: float) -> Callable[[Scenario], Scenario]:
 def scaled(factor: float) -> Callable[[tuple], tuple]:
     """A settings change: every entry of a vector field times ``factor``."""
     return lambda old: tuple(factor * x for x in old)
+
+
+def backstepping_damping(gains) -> dict:
+    """Damping and natural frequency of backstepping's lateral loop, linearised at ``e = 0``.
+
+    With ``w = w_r + v_r (k2 e2 + k3 sin e3)`` and Kanayama's error dynamics
+    ``e2' = -w e1 + v_r sin e3``, ``e3' = w_r - w``, at ``e = 0`` and constant ``v_r > 0``::
+
+        e2'' + k3 v_r e2' + k2 v_r^2 e2 = 0,
+
+    a second-order loop with ``omega_n = sqrt(k2) v_r`` and ``zeta = k3 / (2 sqrt(k2))``
+    (independent of ``v_r``).  The longitudinal loop ``e1' = -k1 e1`` (at ``w_r = 0``) is first
+    order.
+
+    Parameters
+    ----------
+    gains : sequence of 3 floats
+        ``(k1, k2, k3)`` [1/s, 1/m^2, 1/m], each > 0.
+
+    Returns
+    -------
+    dict
+        ``gains`` (list), ``zeta`` [-], ``omega_n_per_v_r`` = ``sqrt(k2)`` [rad/m: omega_n in
+        rad/s per m/s of v_r] and ``name`` (:func:`damping_name` of ``zeta``).
+    """
+    k1, k2, k3 = (float(g) for g in gains)
+    zeta = k3 / (2.0 * math.sqrt(k2))
+    return {"gains": [k1, k2, k3], "zeta": zeta, "omega_n_per_v_r": math.sqrt(k2),
+            "name": damping_name(zeta)}  # fmt: skip
+
+
+def damping_name(zeta: float, tol: float = CRITICAL_TOL) -> str:
+    """``"under-damped"`` (``zeta < 1``), ``"critically damped"`` (``|zeta - 1| < tol``) or
+    ``"over-damped"`` (``zeta > 1``): the name a damping ratio earns, from its number."""
+    if abs(zeta - 1.0) < tol:
+        return "critically damped"
+    return "under-damped" if zeta < 1.0 else "over-damped"
+
+
+def damping_phrase(gains, reference=None) -> str:
+    """How a variant's description states the damping of backstepping's lateral loop, computed
+    from ``gains`` (:func:`backstepping_damping`), e.g. ``"lateral loop under-damped,
+    zeta = k3/(2 sqrt k2) = 0.49, omega_n = sqrt(k2) v_r = 1.41 v_r"``; with ``reference``
+    (the default gains) the default's ``omega_n`` beside it."""
+    d = backstepping_damping(gains)
+    text = (f"lateral loop {d['name']}, ζ = k3/(2√k2) = {d['zeta']:.2f}, ω_n = √k2 v_r = "
+            f"{d['omega_n_per_v_r']:.2f} v_r")
+    if reference is not None:
+        text += f" (default gains {backstepping_damping(reference)['omega_n_per_v_r']:.2f} v_r)"
+    return text

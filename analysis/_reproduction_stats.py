@@ -11,16 +11,23 @@ import math
 import numpy as np
 
 from wmr.result import Row
-from wmr.stats import holm, paired_differences, wilcoxon
+from wmr.stats import holm, paired_differences, tost, wilcoxon
 
-__all__ = ["AXES", "TAIL", "ALPHA", "describe", "by_run", "paired", "ranking", "holm",
-           "contradictions"]  # fmt: skip
+__all__ = ["AXES", "TAIL", "ALPHA", "MARGIN", "EQUIVALENCE_PAIRS", "EQUIVALENCE_METRICS",
+           "describe", "by_run", "paired", "ranking", "holm", "contradictions", "lowest_mean",
+           "equivalence"]  # fmt: skip
 
 AXES = ("x", "y", "theta")
 #: RMSE over t >= wmr.metrics.TRANSIENT (the initial pose error left out), per axis and position.
 TAIL = ("tail_x", "tail_y", "tail_theta", "tail_position")
 #: Family-wise error rate of the tie-aware ranking check (Holm over the pairs of one axis).
 ALPHA = 0.05
+#: Equivalence margin [m] of the TOST of "these two controllers are the same" (1 mm).
+MARGIN = 1e-3
+#: The pairs tested for equivalence, (a, b): the difference is a - b (negative: a is better).
+EQUIVALENCE_PAIRS = (("iapid-nn-dekf", "adaptive-pid"), ("adaptive-pid", "pid"))
+#: The RMSEs the equivalence is tested on: the full run, and after the transient.
+EQUIVALENCE_METRICS = ("position", "tail_position")
 
 
 def describe(values: np.ndarray) -> dict:
@@ -95,3 +102,64 @@ def contradictions(paper_order: list[str], pairs: dict, axis: str,
     return [{"paper_better": a, "paper_worse": b, "mean_diff": d, "p_holm": q}
             for (a, b, d, _), q in zip(tested, adjusted, strict=True)
             if d > 0 and q < alpha]  # fmt: skip
+
+
+def lowest_mean(table: dict, scenario: str, names, variant: str = "default",
+                metric: str = "position") -> dict:  # fmt: skip
+    """The controller of ``names`` with the lowest mean ``metric`` on ``scenario``, each on
+    ``variant``'s runs where it has them and on its default runs otherwise.
+
+    Returns ``{"best": name, "mean": its mean, "means": {name: mean}, "on_variant": [names whose
+    variant runs were used]}``; a controller with a diverged run has mean ``inf`` (it cannot be
+    best), stored as None.
+    """
+    means, used = {}, []
+    for n in names:
+        key = (scenario, n, variant)
+        if key in table:
+            used.append(n)
+        else:
+            key = (scenario, n, "default")
+        vals = table[key][metric]
+        means[n] = float(np.mean(vals)) if np.all(np.isfinite(vals)) else math.inf
+    best = min(names, key=lambda n: means[n])
+    return {"best": best, "mean": _finite(means[best]),
+            "means": {n: _finite(m) for n, m in means.items()}, "on_variant": used}
+
+
+def _finite(x: float) -> float | None:
+    return x if math.isfinite(x) else None
+
+
+def equivalence(table: dict, scenarios, pairs=EQUIVALENCE_PAIRS, metrics=EQUIVALENCE_METRICS,
+                delta: float = MARGIN, alpha: float = ALPHA) -> dict:  # fmt: skip
+    """Paired tests of "a and b are the same controller" per scenario, pair and metric.
+
+    For the per-seed RMSEs ``a``, ``b`` (the same seeds, default runs): the paired-t TOST at the
+    margin ``delta`` (:func:`wmr.stats.tost`; each one-sided test at ``alpha``, so its interval is
+    the ``1 - 2 alpha`` one) and the two-sided Wilcoxon signed-rank p of the difference
+    (:func:`wmr.stats.wilcoxon`), Holm-adjusted (:func:`wmr.stats.holm`) over the family of one
+    metric: every (scenario, pair) tested.  ``equivalent`` and ``different`` (Holm-adjusted
+    p < ``alpha``) can both hold: a difference smaller than the margin can be detectable.
+
+    Returns ``{scenario: {"a vs b": {metric: {TOST fields, "wilcoxon_p", "p_holm",
+    "different"}}}}`` for the pairs whose two controllers both ran on the scenario with at least
+    two finite pairs of runs.
+    """
+    out: dict = {}
+    for metric in metrics:
+        tested = []
+        for sc in scenarios:
+            for a, b in pairs:
+                if (sc, a, "default") in table and (sc, b, "default") in table:
+                    x, y = table[(sc, a, "default")][metric], table[(sc, b, "default")][metric]
+                    if paired_differences(x, y).size < 2:  # TOST needs two pairs
+                        continue
+                    rec = tost(x, y, delta, alpha).to_json()
+                    rec["wilcoxon_p"] = wilcoxon(paired_differences(x, y))
+                    out.setdefault(sc, {}).setdefault(f"{a} vs {b}", {})[metric] = rec
+                    tested.append(rec)
+        for rec, q in zip(tested, holm([r["wilcoxon_p"] for r in tested]), strict=True):
+            rec["p_holm"] = q
+            rec["different"] = bool(q < alpha)
+    return out

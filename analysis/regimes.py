@@ -66,6 +66,8 @@ RATES = (("x1", 0.9, "step"), ("x10", 9.0, "step"), ("x100", 0.9, "second"),
 GAINS = {"good": (5.0, 5.0, 0.0, 10.0, 2.0, 0.0), "weak": (1.0, 1.0, 0.0, 2.0, 0.4, 0.0)}
 PROCESS_STD = (0.01, 0.003)
 SEEDS = 20
+#: The outcome given to a diverged run [m]: the scenarios' divergence bound (its error exceeded it).
+DIVERGED = 10.0
 #: Equivalence margin of IAPID vs APID on the after-transient position RMSE [m].
 MARGIN = 1e-3
 ALPHA = 0.05
@@ -153,6 +155,8 @@ def _cell(rows, others, key: dict, seeds: int) -> dict:
         rec["arms"][c] = {
             "n": int(len(a)), "diverged": int(a.diverged.sum()),
             "tail_mean": _num(a.tail_position.mean()), "tail_std": _num(a.tail_position.std()),
+            "tail_median_with_diverged": _num(a.tail_position.where(~a.diverged, DIVERGED)
+                                              .median()),
             "effort_mean": _num(a.effort.mean()),
             "recovery_mean": _num(a.recovery_rmse.mean()),
             **({"jac_rel_error_median": _num(a.jac_rel_error.median()),
@@ -161,8 +165,11 @@ def _cell(rows, others, key: dict, seeds: int) -> dict:
                 "jac_sign_w_mean": _num(a.jac_sign_w.mean())}
                if c in ("adaptive-pid", "iapid-nn-dekf", "iapid-oracle") else {}),
         }  # fmt: skip
-    series = {c: a.set_index("seed").tail_position.reindex(range(seeds)).to_numpy()
-              for c, a in arms.items()}  # fmt: skip
+    # a diverged run counts with the divergence bound as its error: worse than every run that
+    # stayed within it (the rank tests do not depend on the value; TOST cannot call it equal)
+    series = {c: a.set_index("seed").tail_position.where(~a.set_index("seed").diverged,
+                                                         DIVERGED).reindex(range(seeds))
+              .to_numpy() for c, a in arms.items()}  # fmt: skip
     tests, pvalues = {}, []
     for a, b in PAIRS:
         d = series[a] - series[b]
@@ -197,23 +204,30 @@ def cells(rows, d: dict) -> list[dict]:
     return out
 
 
+def classify(c: dict) -> str:
+    """IAPID vs APID in cell ``c``: ``"equivalent"`` when TOST puts the mean difference within
+    the margin (a real but sub-margin difference is still "the same" in practice), else
+    ``"better"`` / ``"worse"`` when the Holm-adjusted Wilcoxon test is significant, else
+    ``"undecided"``."""
+    t = c["tests"]["iapid-nn-dekf - adaptive-pid"]
+    if c["tost_iapid_apid"]["equivalent"]:
+        return "equivalent"
+    if t["significant"]:
+        return "better" if t["mean_diff"] < 0 else "worse"
+    return "undecided"
+
+
 def verdict(cs: list[dict]) -> dict:
-    """Counts over the cells: IAPID vs APID (better, equivalent, worse, undecided), APID vs the
-    fixed PID, the oracle vs IAPID, and where each arm has the lowest mean."""
+    """Counts over the cells: IAPID vs APID (:func:`classify`), APID vs the fixed PID, IAPID vs
+    the fixed PID, the oracle vs IAPID, and where each arm has the lowest mean."""
     v = dict.fromkeys(("iapid_better_than_apid", "iapid_equivalent_to_apid",
                        "iapid_worse_than_apid", "undecided", "apid_better_than_pid",
                        "apid_worse_than_pid", "iapid_better_than_pid", "oracle_better_than_iapid",
                        "oracle_worse_than_iapid"), 0)  # fmt: skip
+    names = {"better": "iapid_better_than_apid", "equivalent": "iapid_equivalent_to_apid",
+             "worse": "iapid_worse_than_apid", "undecided": "undecided"}  # fmt: skip
     for c in cs:
-        t = c["tests"]["iapid-nn-dekf - adaptive-pid"]
-        if t["significant"] and t["mean_diff"] < 0:
-            v["iapid_better_than_apid"] += 1
-        elif t["significant"] and t["mean_diff"] > 0:
-            v["iapid_worse_than_apid"] += 1
-        elif c["tost_iapid_apid"]["equivalent"]:
-            v["iapid_equivalent_to_apid"] += 1
-        else:
-            v["undecided"] += 1
+        v[names[classify(c)]] += 1
         for key, name in (("adaptive-pid - pid", "apid_{}_pid"), ("iapid-nn-dekf - pid",
                                                                    "iapid_{}_pid"),
                           ("iapid-oracle - iapid-nn-dekf", "oracle_{}_iapid")):  # fmt: skip
@@ -286,6 +300,11 @@ def _pct(x) -> str:
     return "—" if x is None else f"{100 * x:+.1f} %"
 
 
+def _median(xs) -> float | None:
+    xs = [x for x in xs if x is not None]
+    return float(np.median(xs)) if xs else None
+
+
 def table(record: dict) -> str:
     """Per mechanism and rate reading: the cells where IAPID beats APID, the PID, and the mean
     relative differences (``tables/regimes.md``)."""
@@ -294,28 +313,32 @@ def table(record: dict) -> str:
     for mech in record["factors"]["mechanism"]:
         for rate in record["factors"]["rate"]:
             sel = [c for c in cs if c["mechanism"] == mech and c["rate"] == rate]
-            ia = [c["tests"]["iapid-nn-dekf - adaptive-pid"] for c in sel]
+            kinds = [classify(c) for c in sel]
             ap = [c["tests"]["adaptive-pid - pid"] for c in sel]
             rows.append([
-                mech, rate, len(sel),
-                sum(t["significant"] and t["mean_diff"] < 0 for t in ia),
-                sum(c["tost_iapid_apid"]["equivalent"] for c in sel),
-                sum(t["significant"] and t["mean_diff"] > 0 for t in ia),
-                _pct(np.mean([t["rel_diff"] for t in ia if t["rel_diff"] is not None])),
+                mech, rate, len(sel), kinds.count("better"), kinds.count("equivalent"),
+                kinds.count("worse"), kinds.count("undecided"),
+                _pct(_median(c["tests"]["iapid-nn-dekf - adaptive-pid"]["rel_diff"] for c in sel)),
                 sum(t["significant"] and t["mean_diff"] < 0 for t in ap),
-                _pct(np.mean([t["rel_diff"] for t in ap if t["rel_diff"] is not None])),
+                _pct(_median(t["rel_diff"] for t in ap)),
                 ", ".join(sorted({controllers.label(c["best"]) for c in sel})),
             ])  # fmt: skip
     header = ["mechanism", "SGD rate", "cells", "IAPID < APID", "IAPID ≡ APID", "IAPID > APID",
-              "IAPID vs APID (mean rel.)", "APID < PID", "APID vs PID (mean rel.)",
-              "lowest mean"]  # fmt: skip
+              "undecided", "IAPID vs APID (median rel.)", "APID < PID",
+              "APID vs PID (median rel.)", "lowest mean"]  # fmt: skip
     return "\n".join(common.md_table(header, rows)) + "\n"
 
 
-def _examples(cs: list[dict], key: str, better: bool, k: int = 3) -> list[dict]:
-    sel = [c for c in cs if c["tests"][key]["significant"]
-           and (c["tests"][key]["mean_diff"] < 0) == better]  # fmt: skip
-    return sorted(sel, key=lambda c: c["tests"][key]["rel_diff"])[:k]
+def _by(cs: list[dict], key: str) -> str:
+    """``"level n, ..."`` counts of the cells ``cs`` by factor ``key`` (in the factor's order)."""
+    import collections
+
+    n = collections.Counter(str(c[key]) for c in cs)
+    return ", ".join(f"{k} {v}" for k, v in n.items()) if n else "none"
+
+
+def _median_of(cs, arm: str, key: str) -> str:
+    return common.fmt(_median(c["arms"][arm].get(key) for c in cs), 3)
 
 
 def _cell_name(c: dict) -> str:
@@ -326,41 +349,63 @@ def _cell_name(c: dict) -> str:
 def notes(record: dict) -> list[str]:
     """The answer, in sentences computed from the record."""
     v, cs = record["verdict"], record["cells"]
-    n = v["cells"]
+    ia, ap = "iapid-nn-dekf - adaptive-pid", "adaptive-pid - pid"
+    pays = [c for c in cs if classify(c) == "better" and c["tests"]["iapid-nn-dekf - pid"]
+            ["significant"] and c["tests"]["iapid-nn-dekf - pid"]["mean_diff"] < 0]  # fmt: skip
+    apid_div = [c for c in pays if c["arms"]["adaptive-pid"]["diverged"] > 0]
+    worse = [c for c in cs if classify(c) == "worse"]
     out = [
-        f"{n} cells ({' x '.join(f'{len(x)} {k}' for k, x in record['factors'].items())}), "
-        f"{record['seeds']} seeds each with common random numbers; outcome: position RMSE after "
-        f"the transient; tests: paired Wilcoxon, Holm over the {len(PAIRS)} tested pairs of a "
-        f"cell (alpha {record['alpha']:g}), TOST of IAPID vs APID at ±{1e3 * record['margin']:g} "
-        "mm.",
-        f"IAPID-NN-DEKF vs APID: significantly better in {v['iapid_better_than_apid']} cells, "
-        f"equivalent (TOST) in {v['iapid_equivalent_to_apid']}, significantly worse in "
-        f"{v['iapid_worse_than_apid']}, undecided in {v['undecided']}.",
+        f"{v['cells']} cells ({' x '.join(f'{len(x)} {k}' for k, x in record['factors'].items())}"
+        f"), {record['seeds']} seeds each with common random numbers; outcome: position RMSE "
+        f"after the transient (a diverged run counts as {DIVERGED:g} m); tests: paired Wilcoxon, "
+        f"Holm over the {len(PAIRS)} tested pairs of a cell (alpha {record['alpha']:g}), TOST of "
+        f"IAPID vs APID at ±{1e3 * record['margin']:g} mm.",
+        f"IAPID-NN-DEKF vs APID (the same PID and SGD, the identified instead of the model "
+        f"Jacobian): better in {v['iapid_better_than_apid']} cells, equivalent within the margin "
+        f"in {v['iapid_equivalent_to_apid']}, worse in {v['iapid_worse_than_apid']}, undecided in "
+        f"{v['undecided']}.",
+        f"The indirect scheme pays (IAPID significantly better than both APID and the fixed PID) "
+        f"in {len(pays)} of {v['cells']} cells; by mechanism: {_by(pays, 'mechanism')}; by SGD "
+        f"rate: {_by(pays, 'rate')}; by initial gains: {_by(pays, 'gains')}."
+        + (f"  In {len(apid_div)} of them APID diverged "
+           f"({sum(c['arms']['adaptive-pid']['diverged'] for c in apid_div)} of their "
+           f"{sum(c['arms']['adaptive-pid']['n'] for c in apid_div)} runs) and IAPID in "
+           f"none: there IAPID pays by staying stable where the model-Jacobian step does not."
+           if apid_div and all(c["arms"]["iapid-nn-dekf"]["diverged"] == 0 for c in apid_div)
+           else f"  In {len(apid_div)} of them APID diverged in some seeds." if apid_div
+           else ""),
+        f"Where IAPID is worse than APID ({len(worse)} cells), by SGD rate: {_by(worse, 'rate')}; "
+        f"median relative difference IAPID vs APID over those cells "
+        f"{_pct(_median(c['tests'][ia]['rel_diff'] for c in worse))}.",
+        f"Why, in the Jacobian the SGD step used against the true robot's one-step Jacobian "
+        f"(median over the cells where IAPID pays / where it is worse): relative error IAPID "
+        f"{_median_of(pays, 'iapid-nn-dekf', 'jac_rel_error_median')} / "
+        f"{_median_of(worse, 'iapid-nn-dekf', 'jac_rel_error_median')}, APID "
+        f"{_median_of(pays, 'adaptive-pid', 'jac_rel_error_median')} / "
+        f"{_median_of(worse, 'adaptive-pid', 'jac_rel_error_median')}; norm ratio of IAPID's "
+        f"Jacobian {_median_of(pays, 'iapid-nn-dekf', 'jac_norm_ratio_median')} / "
+        f"{_median_of(worse, 'iapid-nn-dekf', 'jac_norm_ratio_median')} (a norm ratio scales the "
+        "SGD step like the learning rate).",
         f"APID vs the fixed PID: better in {v['apid_better_than_pid']} cells, worse in "
-        f"{v['apid_worse_than_pid']}; IAPID better than the fixed PID in "
-        f"{v['iapid_better_than_pid']}.",
-        f"The oracle identifier (true poses) vs IAPID: better in {v['oracle_better_than_iapid']} "
-        f"cells, worse in {v['oracle_worse_than_iapid']}.",
+        f"{v['apid_worse_than_pid']}; median relative difference by SGD rate: "
+        + ", ".join(f"{r} {_pct(_median(c['tests'][ap]['rel_diff'] for c in cs if c['rate'] == r))}"
+                    for r in record["factors"]["rate"]) + ".",
+        f"The oracle identifier (trained on the true poses) vs IAPID: better in "
+        f"{v['oracle_better_than_iapid']} cells, worse in {v['oracle_worse_than_iapid']}; its "
+        f"Jacobian's median relative error {_median_of(cs, 'iapid-oracle', 'jac_rel_error_median')}"
+        f" against IAPID's {_median_of(cs, 'iapid-nn-dekf', 'jac_rel_error_median')}.",
         "Lowest mean per cell: " + ", ".join(f"{controllers.label(a)} {k}"
                                              for a, k in v["best_arm"].items() if k) + ".",
     ]  # fmt: skip
-    for key, better, what in (("iapid-nn-dekf - adaptive-pid", True, "IAPID beats APID most"),
-                              ("adaptive-pid - pid", True, "APID beats the fixed PID most")):
-        ex = _examples(cs, key, better)
-        if ex:
-            out.append(f"Where {what}: " + "; ".join(
-                f"{_cell_name(c)} ({_pct(c['tests'][key]['rel_diff'])}, 95 % CI "
-                f"[{1e3 * c['tests'][key]['ci_low']:.2f}, {1e3 * c['tests'][key]['ci_high']:.2f}] "
-                "mm)" for c in ex) + ".")  # fmt: skip
-    jac = {}
-    for arm in ("adaptive-pid", "iapid-nn-dekf", "iapid-oracle"):
-        x = [c["arms"][arm].get("jac_rel_error_median") for c in cs]
-        x = [y for y in x if y is not None]
-        jac[arm] = float(np.median(x)) if x else None
-    out.append("Jacobian the SGD step used vs the true robot's one-step Jacobian (median over "
-               "cells of the per-cell median relative error, cells with a zero true Jacobian "
-               "left out): " + ", ".join(f"{controllers.label(a)} {common.fmt(e, 3)}"
-                                          for a, e in jac.items()) + ".")  # fmt: skip
+    stable = [c for c in pays if all(c["arms"][a]["diverged"] == 0
+                                     for a in ("iapid-nn-dekf", "adaptive-pid"))]
+    best = sorted(stable, key=lambda c: c["tests"][ia]["rel_diff"])[:3]
+    if best:
+        out.append("Largest gains of IAPID over APID where neither diverged: " + "; ".join(
+            f"{_cell_name(c)} ({_pct(t['rel_diff'])}, difference of the means "
+            f"{1e3 * t['mean_diff']:.2f} mm, 95 % CI [{1e3 * t['ci_low']:.2f}, "
+            f"{1e3 * t['ci_high']:.2f}] mm)"
+            for c, t in ((c, c["tests"][ia]) for c in best)) + ".")  # fmt: skip
     c = record["cost"]
     out.append(f"Cost: {c['runs']:,} runs ({c['runs_this_time']:,} this time) in "
                f"{c['seconds']:.0f} s on {c['engine']}.")

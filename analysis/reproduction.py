@@ -22,18 +22,28 @@ import numpy as np
 
 from analysis import _reproduction_figures as figures
 from analysis import _reproduction_stats as stats
+from analysis import _reproduction_views as views
 from analysis import common
-from analysis._ablations import Variant, noise_scaled, pose_source, pose_source_changes, scaled
-from analysis._reproduction_stats import ALPHA, AXES, TAIL
-from analysis.common import fmt
+from analysis._ablations import (
+    Variant,
+    backstepping_damping,
+    damping_phrase,
+    noise_scaled,
+    pose_source,
+    pose_source_changes,
+    scaled,
+)
+from analysis._reproduction_stats import ALPHA, AXES, EQUIVALENCE_METRICS, MARGIN, TAIL
+from analysis._reproduction_views import REGIMES_SECTION, TABLE_NUMBER, gains_text
 from wmr import controllers
 from wmr import scenario as scn
 from wmr.io import atomic_write_text, write_csv
 from wmr.metrics import TRANSIENT
 from wmr.study import ROW_HEADER, Job, Row, run_jobs
 
-__all__ = ["STEM", "TITLE", "PAPER_RMSE", "VARIANTS", "build_jobs", "summarise",
-           "gain_excursions", "table_markdown", "table_latex", "run", "check", "render"]
+__all__ = ["STEM", "TITLE", "PAPER_RMSE", "VARIANTS", "REGIMES_SECTION", "build_jobs",
+           "summarise", "gain_excursions", "adaptation_defaults", "table_markdown", "table_latex",
+           "run", "check", "render"]  # fmt: skip
 
 STEM = "reproduction"
 TITLE = "Tables 1–3: the paper beside this reproduction"
@@ -59,9 +69,15 @@ PAPER_RMSE = {
         "adaptive-pid": (0.0583, 0.0415, 0.1252),
     },
 }
-TABLE_NUMBER = {"lemniscate": 1, "sinusoid": 2, "sinusoid-perturbed": 3}
+
 #: Seeds of a quick run (``run(..., quick=True)``).
 QUICK_SEEDS = 3
+
+#: Backstepping gains (k1, k2, k3): the default, and the two ablations.
+_BSC_DEFAULT = controllers.get("backstepping").Settings().gains
+_BSC_LOW = (0.5, 2.0, 1.4)
+_BSC_KANAYAMA = (10.0, 64.0, 16.0)
+
 
 #: The ablations, in report order.  Which controllers each applies to is derived from the
 #: settings fields it names (``analysis._ablations``).
@@ -78,10 +94,12 @@ VARIANTS: dict[str, Variant] = {v.name: v for v in (
             scenario=pose_source("filtered"), affects=pose_source_changes),
     Variant("pose-raw", "iapid-nn-dekf uses the raw measured pose (no localisation filter)",
             scenario=pose_source("raw"), affects=pose_source_changes),
-    Variant("bsc-gains-low", "backstepping gains (0.5, 2, 1.4): slow, critically damped",
-            settings={"gains": (0.5, 2.0, 1.4)}, only=("backstepping",)),
-    Variant("bsc-gains-kanayama", "backstepping gains (10, 64, 16) of Kanayama et al. (1990)",
-            settings={"gains": (10.0, 64.0, 16.0)}, only=("backstepping",)),
+    Variant("bsc-gains-low", f"backstepping gains {gains_text(_BSC_LOW)}: "
+            + damping_phrase(_BSC_LOW, _BSC_DEFAULT),
+            settings={"gains": _BSC_LOW}, only=("backstepping",)),
+    Variant("bsc-gains-kanayama", f"backstepping gains {gains_text(_BSC_KANAYAMA)} of "
+            "Kanayama et al. (1990): " + damping_phrase(_BSC_KANAYAMA, _BSC_DEFAULT),
+            settings={"gains": _BSC_KANAYAMA}, only=("backstepping",)),
     Variant("noise-free", "no pose-measurement noise", scenario=noise_scaled(0.0)),
     Variant("noise-x3", "pose-measurement noise std x3 (0.03 m, 0.03 rad)",
             scenario=noise_scaled(3.0)),
@@ -148,14 +166,46 @@ def _scenario_summary(table: dict, sc: str) -> dict:
     return entry
 
 
+def _feed_forward_best(table: dict, sc: str) -> dict:
+    """The controller with the lowest mean position RMSE on ``sc`` without and with the
+    ``feed-forward`` variant (the controllers it applies to on its runs, the others on their
+    default runs): :func:`analysis._reproduction_stats.lowest_mean`."""
+    names = [n for n in controllers.NAMES if (sc, n, "default") in table]
+    return {"without": stats.lowest_mean(table, sc, names),
+            "with": stats.lowest_mean(table, sc, names, "feed-forward")}  # fmt: skip
+
+
+def _damping() -> dict:
+    """The lateral-loop damping of backstepping's default gains and of every variant that sets
+    them (:func:`analysis._ablations.backstepping_damping`)."""
+    out = {"default": backstepping_damping(_BSC_DEFAULT)}
+    for v in VARIANTS.values():
+        if "gains" in v.settings and v.only == ("backstepping",):
+            out[v.name] = backstepping_damping(v.settings["gains"])
+    return out
+
+
 def summarise(rows: list[Row]) -> dict:
-    """Statistics, rankings and paired comparisons of ``rows``, as stored in the record."""
+    """Statistics, rankings and paired comparisons of ``rows``, as stored in the record; the
+    equivalence tests of the PID family (:func:`analysis._reproduction_stats.equivalence`), the
+    best controller without and with feed-forward, and backstepping's damping per gain set."""
     table = stats.by_run(rows)
     scenarios = sorted({k[0] for k in table}, key=list(PAPER_RMSE).index)
     out: dict = {"scenarios": {}, "variants": {k: v.description for k, v in VARIANTS.items()},
                  "alpha": ALPHA}  # fmt: skip
     for sc in scenarios:
         out["scenarios"][sc] = _scenario_summary(table, sc)
+    out["equivalence"] = {
+        "margin": MARGIN, "alpha": ALPHA, "metrics": list(EQUIVALENCE_METRICS),
+        "definition": "paired-t TOST of a - b at the margin (each one-sided test at alpha: "
+                      "ci_low, ci_high is the 1 - 2 alpha interval of the mean difference, m); "
+                      "wilcoxon_p: two-sided signed-rank test of the same differences, p_holm: "
+                      "Holm-adjusted over every (scenario, pair) of one metric",
+        "scenarios": stats.equivalence(table, scenarios),
+    }  # fmt: skip
+    out["feed_forward_best"] = {sc: _feed_forward_best(table, sc) for sc in scenarios
+                                if any(k[0] == sc and k[2] == "feed-forward" for k in table)}
+    out["backstepping_damping"] = _damping()
     return out
 
 
@@ -179,6 +229,17 @@ def gain_excursions(scenarios: dict, seed: int = 0) -> dict:
     return out
 
 
+def adaptation_defaults(scenarios: dict) -> dict:
+    """The settings at which the PID family's equivalence is measured, per scenario: APID's
+    initial gains, its SGD rates and how the plant Jacobian is read (``jacobian_scale``)."""
+    out = {}
+    for name, sc in scenarios.items():
+        st = sc.settings("adaptive-pid")
+        out[name] = {"gains": list(st.gains), "mu": list(st.mu),
+                     "jacobian_scale": st.jacobian_scale, "gradient": st.gradient}  # fmt: skip
+    return out
+
+
 def run(out, *, quick: bool = False, workers: int | None = None, seeds: int = 20,
         progress: bool | None = None) -> dict:  # fmt: skip
     """Run the reproduction into ``out`` (``QUICK_SEEDS`` seeds at most when ``quick``), write
@@ -192,6 +253,7 @@ def run(out, *, quick: bool = False, workers: int | None = None, seeds: int = 20
     record["seeds"] = seeds
     record["transient_s"] = TRANSIENT
     record["gain_excursion"] = gain_excursions(scenarios)
+    record["adaptation_defaults"] = adaptation_defaults(scenarios)
     record["pose_source"] = {
         sc: {n: "filtered" if s.estimator.filters(n) else "raw" for n in controllers.NAMES}
         for sc, s in scenarios.items()
@@ -283,198 +345,8 @@ def render(record: dict) -> str:
              + ", ".join(f"{controllers.label(n)} {src}" for n, src in
                          next(iter(record["pose_source"].values())).items()) + ".")  # fmt: skip
     tables = "\n".join(table_markdown(record, sc) for sc in record["scenarios"])
-    return "\n".join([common.section(TITLE, intro, tables), _ranking_section(record),
-                      _ablations_section(record)])  # fmt: skip
-
-
-def _verdict(rep: dict) -> list[str]:
-    reproduced = [v for e in rep["scenarios"].values()
-                  for v in e["paper_ranking_reproduced"].values()]  # fmt: skip
-    best = {sc: e["ranking"]["default"]["position"][0] for sc, e in rep["scenarios"].items()}
-    n_best = sum(1 for b in best.values() if b == "iapid-nn-dekf")
-    return [f"**Verdict.** The paper's order of the four controllers is reproduced on "
-            f"{sum(reproduced)} of {len(reproduced)} (scenario, axis) pairs.  "
-            f"IAPID-NN-DEKF has the lowest mean position RMSE in {n_best} of {len(best)} "
-            "scenarios (best: "
-            + ", ".join(f"{sc}: {controllers.label(b)}" for sc, b in best.items()) + ").",
-            ""]  # fmt: skip
-
-
-def _tie_aware(rep: dict) -> list[str]:
-    contra = {(sc, axis): c for sc, e in rep["scenarios"].items()
-              for axis, c in e.get("paper_ranking_contradicted", {}).items()}  # fmt: skip
-    if not contra:
-        return []
-    n_contra = sum(1 for c in contra.values() if c)
-    n_big = sum(1 for c in contra.values() if any(x["mean_diff"] >= 1e-3 for x in c))
-    k = len(next(iter(rep["scenarios"].values()))["paper_ranking"]["x"])
-    listed = "; ".join(
-        f"{sc} {axis}: " + ", ".join(f"{controllers.label(c['paper_worse'])} < "
-                                     f"{controllers.label(c['paper_better'])}" for c in cs)
-        for (sc, axis), cs in contra.items() if cs)  # fmt: skip
-    return [f"**Tie-aware check.** Means that differ by less than the seed-to-seed noise "
-            "should not count against the paper, so the order is also tested pair by pair: "
-            "the paper's order is *contradicted* on an axis when a controller it ranks lower "
-            "is significantly better in our runs (paired Wilcoxon over the seeds, Holm-"
-            f"adjusted over the {k * (k - 1) // 2} pairs of the axis, family-wise "
-            f"α = {rep['alpha']:g}).  Contradicted on {n_contra} of {len(contra)} (scenario, "
-            "axis) pairs" + (": " + listed if n_contra else "")
-            + f".  Counting only reversals larger than 1 mm (1 mrad for θ): "
-            f"{n_big} of {len(contra)}.", ""]  # fmt: skip
-
-
-def _adaptation(rep: dict) -> list[str]:
-    exc = rep.get("gain_excursion", {})
-    if not exc:
-        return []
-    rel = {g: max(r["max_rel"][g] for d in exc.values() for r in d.values())
-           for g in ("Kpv", "Kiv", "Kpw", "Kiw")}  # fmt: skip
-    kd = max(r["max_abs"][g] for d in exc.values() for r in d.values() for g in ("Kdv", "Kdw"))
-    inert = max(rel.values()) < 0.1 and kd < 0.5
-    title = "Adaptation barely acts" if inert else "Gain adaptation"
-    return [f"**{title}.** Over a run (seed 0, every scenario) SGD moves the "
-            f"proportional and integral gains by at most "
-            + ", ".join(f"{g} {100 * v:.1f} %" for g, v in rel.items())
-            + f"; the derivative gains start at 0 and reach {kd:.3f} (E5d: measurement "
-            "noise drives them up)."
-            + ("  With the paper's μ = 0.9 the update is μ dt e φ with errors of "
-               "centimetres, so IAPID-NN-DEKF, APID and the fixed PID behave as one "
-               "controller." if inert else ""), ""]  # fmt: skip
-
-
-def _near_ties(rep: dict) -> list[str]:
-    tiny = [f"{sc}: {' vs '.join(controllers.label(x) for x in pair.split(' vs '))}"
-            for sc, e in rep["scenarios"].items() for pair, r in e["paired"].items()
-            if r["position"].get("n") and abs(r["position"]["mean_diff"]) < 1e-3]  # fmt: skip
-    if not tiny:
-        return []
-    return ["Pairs whose mean position RMSE differs by less than 1 mm (statistically "
-            "detectable with common random numbers, practically the same): "
-            + "; ".join(tiny) + ".", ""]  # fmt: skip
-
-
-def _order(names) -> str:
-    return " < ".join(controllers.label(n) for n in names)
-
-
-def _orders(rep: dict) -> list[str]:
-    lines = []
-    for sc, entry in rep["scenarios"].items():
-        ours = entry["ranking"]["default"]
-        lines.append(f"**{sc}.**")
-        for axis in AXES:
-            same = entry.get("paper_ranking_reproduced", {}).get(axis)
-            lines.append(f"- {axis}: paper {_order(entry['paper_ranking'][axis])}; ours "
-                         f"{_order(ours[axis])} — {'reproduced' if same else 'not reproduced'}")
-        lines.append(f"- position RMSE (frame-invariant): {_order(ours['position'])}")
-        lines.append(f"- position RMSE after the transient (t ≥ {rep['transient_s']:g} s): "
-                     f"{_order(ours['tail_position'])}")  # fmt: skip
-        lines.append("")
-    return lines
-
-
-def _tail_table(rep: dict) -> list[str]:
-    lines = [f"Position RMSE [m] after the transient (t ≥ {rep['transient_s']:g} s), "
-             "mean ± std; in brackets the share of the full-run figure that remains (a small "
-             "share: the initial pose error dominated it; near 1: a steady tracking error):", ""]
-    rows = []
-    for sc, entry in rep["scenarios"].items():
-        cells = []
-        for n in controllers.NAMES:
-            rec = entry["runs"].get(n, {}).get("default", {})
-            t, full = rec.get("tail_position"), rec.get("position")
-            if not t or t["mean"] is None:
-                cells.append("—")
-            else:
-                share = t["mean"] / full["mean"]
-                cells.append(f"{t['mean']:.4f} ± {t['std']:.4f} ({share:.2f})")
-        rows.append([sc, *cells])
-    header = ["scenario", *(controllers.label(n) for n in controllers.NAMES)]
-    return lines + common.md_table(header, rows) + [""]
-
-
-def _paired_table(rep: dict) -> list[str]:
-    rows = []
-    for sc, entry in rep["scenarios"].items():
-        for pair, rec in entry["paired"].items():
-            r = rec["position"]
-            if r.get("n"):
-                a, b = pair.split(" vs ")
-                rows.append([sc, f"{controllers.label(a)} vs {controllers.label(b)}",
-                             fmt(r["mean_diff"]), fmt(r["std_diff"]), f"{r['wins']}/{r['n']}",
-                             fmt(r["wilcoxon_p"], 3)])  # fmt: skip
-    return (["Paired comparisons of the position RMSE (difference A − B per seed; wins = seeds "
-             "where A is better; Wilcoxon signed-rank p):", ""]
-            + common.md_table(["scenario", "A vs B", "mean diff [m]", "std", "wins", "p"], rows)
-            + [""])  # fmt: skip
-
-
-def _ranking_section(rep: dict) -> str:
-    lines = ["## Does the paper's ranking appear?", ""]
-    lines += _verdict(rep) + _tie_aware(rep) + _adaptation(rep) + _near_ties(rep)
-    lines += _orders(rep) + _tail_table(rep) + _paired_table(rep)
-    return "\n".join(lines)
-
-
-def _ablation_cell(rec: dict | None) -> str:
-    if rec is None:
-        return "—"
-    m, s = rec["position"]["mean"], rec["position"]["std"]
-    cell = "diverged" if m is None else f"{m:.4f} ± {s:.4f}"
-    if rec["n_diverged"] and m is not None:
-        cell += f" ({rec['n_diverged']} diverged)"
-    return cell
-
-
-def _ablation_table(entry: dict, variants: list[str]) -> list[str]:
-    names = [n for n in controllers.NAMES if n in entry["runs"]]
-    rows = [[v, *(_ablation_cell(entry["runs"][n].get(v)) for n in names)] for v in variants]
-    lines = common.md_table(["variant", *(controllers.label(n) for n in names)], rows) + [""]
-    default = entry["ranking"]["default"]["position"]
-    changed = [v for v in entry["ranking"] if v != "default"
-               and entry["ranking"][v]["position"] != default]  # fmt: skip
-    if changed:
-        lines.append("The position ranking of the paper's four controllers changes under: "
-                     + ", ".join(changed) + ".")  # fmt: skip
-    else:
-        lines.append("No variant changes the position ranking of the paper's four controllers.")
-    return lines + [""]
-
-
-def _figure(name: str, caption: str) -> list[str]:
-    return [f"![{caption}](figures/{name})", ""]
-
-
-def _figures(rep: dict) -> list[str]:
-    """The paths (Figure 4), the errors of the first and the last scenario (Figures 8, 10) and
-    the ablations, as the record lists them."""
-    names = rep["figures"]
-    scenarios = list(rep["scenarios"])
-    lines = []
-    wanted = [("_paths.png", "Figure 4")]
-    wanted += [(f"_errors_{sc}.png", f"Figure {7 + TABLE_NUMBER[sc]}")
-               for sc in (scenarios[0], scenarios[-1])]  # fmt: skip
-    wanted += [("ablations.png", "Ablations")]
-    for suffix, caption in wanted:
-        lines += [x for n in names if n.endswith(suffix) for x in _figure(n, caption)]
-    return lines
-
-
-def _ablations_section(rep: dict) -> str:
-    lines = ["## Ablations and sensitivities", "",
-             "Position RMSE, mean ± std over seeds, per variant (— : not applicable):", ""]
-    variants = ["default", *rep["variants"]]
-    for sc, entry in rep["scenarios"].items():
-        lines += [f"**{sc}**", ""] + _ablation_table(entry, variants)
-    lines += ["Variants:", ""] + [f"- `{k}`: {v}" for k, v in rep["variants"].items()]
-    if rep.get("divergences"):
-        lines += ["", f"Runs that diverged: {len(rep['divergences'])}."]
-        for d in rep["divergences"][:20]:
-            lines.append(f"- {d['scenario']} / {d['controller']} / {d['variant']} / seed "
-                         f"{d['seed']}: at {fmt(d['diverged_at'], 2)} s, {d['cause']}")
-    else:
-        lines += ["", "No run diverged."]
-    return "\n".join(lines + [""] + _figures(rep))
+    return "\n".join([common.section(TITLE, intro, tables), views.ranking_section(record),
+                      views.ablations_section(record)])  # fmt: skip
 
 
 if __name__ == "__main__":

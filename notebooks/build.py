@@ -52,7 +52,7 @@ def build(name: str) -> Path:
     for i, cell in enumerate(nb.cells):
         cell["id"] = f"{name[:2]}-{i:02d}"
     NotebookClient(nb, timeout=600, kernel_name="python3",
-                   resources={"metadata": {"path": str(HERE.parent)}}).execute()  # fmt: skip
+                   resources={"metadata": {"path": str(HERE)}}).execute()  # as nbval: in notebooks/
     out = HERE / f"{name}.ipynb"
     nbformat.write(nb, out)
     return out

@@ -494,3 +494,18 @@ def _toml_value(v) -> str:
 def to_toml(doc: dict) -> str:
     """TOML text of a document, every table written inline (``key = {...}``)."""
     return "".join(f"{_toml_string(k)} = {_toml_value(v)}\n" for k, v in doc.items())
+
+
+#: A short lemniscate (the sweep and engine tests'), its duration a format field.
+SHORT_LEMNISCATE = """\
+name = "short"
+duration = {duration}
+dt = 0.01
+initial_pose = [0.0, -0.2, 1.5707963267948966]
+[reference]
+kind = "lemniscate"
+size = 2.0
+period = 40.0
+[noise]
+pose_std = [0.01, 0.01, 0.01]
+"""

@@ -205,6 +205,21 @@ def test_noise_term_is_the_trace_formula(seed):
     assert_allclose(stab.noise_term(P_next, K, np.diag(Q), R), want, rtol=EIG_RTOL)
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_noise_term_parts_give_the_noise_term_for_any_measurement_noise(seed):
+    # Oracle: noise_term (its own Cholesky evaluation) with the filter's R and with another R.
+    P, H, R, Q, _ = _random_filter(seed, n=7, m=3)
+    c = stab.kalman_contraction(P, H, R, Q)
+    tr_q, ktpik = stab.noise_term_parts(c["P_next"], c["K"], np.diag(Q))
+    assert ktpik.shape == (3, 3)
+    assert_allclose(ktpik, ktpik.T, rtol=EXACT_RTOL, atol=0)
+    for R_v in (R, np.diag([0.5, 0.2, 0.1]), np.zeros((3, 3))):
+        want = np.trace(np.linalg.inv(c["P_next"]) @ (Q + c["K"] @ R_v @ c["K"].T))
+        assert_allclose(stab.noise_term_from_parts(tr_q, ktpik, R_v), want, rtol=EIG_RTOL)
+    assert_allclose(stab.noise_term_from_parts(tr_q, ktpik, R),
+                    stab.noise_term(c["P_next"], c["K"], np.diag(Q), R), rtol=EIG_RTOL)
+
+
 def test_theorem1_bound_arithmetic():
     # alpha = 0.5, p in [1, 4], mu = 0.25, ||e0||^2 = 2: transient 4 * 2 * 0.75^k, floor
     # 2 * 4 * 0.25 / 0.5 = 4.
@@ -244,6 +259,30 @@ def test_random_walk_consistency_against_simulation():
     assert_allclose(np.mean(nis), e_nis, rtol=MC_RTOL)
 
 
+def test_random_walk_increment_noise_against_simulation():
+    # Oracle: the scalar filter of the previous test, its error differenced; q = r = 1e-4 gives
+    # K = 1/phi, Var d / r = K^2 (K/(2-K) + 1) and corr_1 = -1/(2 phi) (by hand: -0.309).
+    q, r, runs, steps = 1e-4, 1e-4, 60, 300
+    rng = np.random.default_rng(11)
+    d = []
+    for _ in range(runs):
+        x_hat, P, e = 0.0, r, []
+        for z in rng.standard_normal(steps) * math.sqrt(r):
+            K = (P + q) / (P + q + r)
+            x_hat += K * (z - x_hat)
+            P = (1 - K) * (P + q)
+            e.append(x_hat)  # the true state is 0: x_hat is the error
+        d.append(np.diff(e[100:]))  # steady state
+    d = np.array(d)
+    var, corr = stab.random_walk_increment_noise(q, r)
+    K = (math.sqrt(5) - 1) / 2
+    assert_allclose(var, K * K * (K / (2 - K) + 1), rtol=EXACT_RTOL)
+    assert_allclose(corr, -K / 2, rtol=1e-12)  # (1-K) K/(2-K) - K = -K (s2 + 1)/2 with K^2=1-K
+    assert_allclose(np.mean(d**2) / r, var, rtol=MC_RTOL)
+    lag1 = np.mean(d[:, 1:] * d[:, :-1]) / np.mean(d**2)
+    assert lag1 == pytest.approx(corr, abs=0.03)  # ~12000 products: std ~0.01
+
+
 # --- The study ------------------------------------------------------------------------------
 
 COMMITTED = Path(__file__).resolve().parents[1] / "paper"
@@ -270,6 +309,20 @@ def test_analyse_weight_filter_short_run():
     assert rec["innovation_recomputed_max_rel_diff"] < bd.INNOVATION_RTOL
     assert rec["direct_vs_cancellation_free_max_abs"] < bd.DIRECT_ATOL
     assert series["alpha_k"].shape == (sc.n_steps,) and np.isnan(series["alpha_k"][0])
+    # the measured target noise: the targets minus the true increments, over the filter updates
+    res = simulate(sc, "iapid-nn-dekf", 1)
+    v = (np.diff(res.q_hat, axis=0) - np.diff(res.q[: sc.n_steps], axis=0)) / sc.dt
+    assert rec["target_noise_steps"] == sc.n_steps - 1
+    assert_allclose(rec["target_noise_cov"], v.T @ v / len(v), rtol=1e-9)  # no heading seam here
+    assert_allclose(rec["target_noise_std"], v.std(axis=0), rtol=1e-9)
+    assert rec["weight_error_theorem1_mu_parts_max_rel_diff"] < bd.NOISE_PARTS_RTOL
+    # the real noise is ~1e3 times smaller than R = 1000 I: a smaller noise term and bound
+    assert rec["filter_r_over_target_noise"] > 100
+    assert rec["weight_error_theorem1_mu_q_part"] <= rec["weight_error_theorem1_mu_measured_noise"]
+    assert rec["weight_error_theorem1_mu_measured_noise"] < rec["weight_error_theorem1_mu"]
+    assert (rec["weight_error_theorem1_bound_final_measured_noise"]
+            < rec["weight_error_theorem1_bound_final"])  # fmt: skip
+    assert series["bound_measured"].shape == (sc.n_steps,)
     # the proxy theta* is the end of a run twice as long: the error starts at ||theta_0 - theta*||
     theta_star = simulate(dataclasses.replace(sc, duration=2.0), "iapid-nn-dekf", 1).final.theta
     theta_0 = loop.prepare(sc, "iapid-nn-dekf", 1).theta
@@ -307,13 +360,31 @@ def test_check_holds_on_the_committed_record(committed):
 @pytest.mark.parametrize(
     "key, value",
     [("ineq48_fraction", 0.999), ("replay_equals_simulate", False), ("alpha", 1e-3),
-     ("covariance_repairs", 1), ("nees_mean", 3.0)],
+     ("covariance_repairs", 1), ("nees_mean", 3.0), ("target_noise_std", [1.3, 0.74, 0.74]),
+     ("weight_error_theorem1_mu_parts_max_rel_diff", 1e-6)],
 )  # fmt: skip
 def test_check_rejects_a_broken_claim(committed, key, value):
     record = copy.deepcopy(committed)
     record["sinusoid"][key] = value
     with pytest.raises(AssertionError, match="sinusoid"):
         bd.check(record)
+
+
+def test_the_check_names_ineq48_a_consistency_check(committed):
+    record = copy.deepcopy(committed)
+    record["sinusoid"]["ineq48_fraction"] = 0.999
+    with pytest.raises(AssertionError, match="sinusoid: consistency check failed: \\(48\\)"):
+        bd.check(record)
+
+
+def test_render_calls_ineq48_a_consistency_check_and_gives_both_bounds(committed):
+    text = bd.render(committed)
+    assert "(48) fraction with Lemma 2 alpha (consistency check)" in text
+    if "target_noise_cov" in committed["sinusoid"]:  # a record with the measured noise
+        assert "is a *consistency check*, not evidence" in text
+        assert "Theorem 1 bound, end (measured target noise)" in text
+        for rec in committed.values():
+            assert any("Consistency check, not evidence" in n for n in rec["notes"])
 
 
 def test_render_is_the_committed_report_section(committed):

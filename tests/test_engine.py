@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
+from cases import SHORT_LEMNISCATE
 
 from wmr import scenario as scn
 from wmr import study, sweep
@@ -30,18 +31,7 @@ kind = "grid"
 "plant.v_gain" = [0.7, 1.0, 1.3]
 "estimator.process_std" = [0.003, 0.01]
 """
-SCENARIO = """\
-name = "short"
-duration = {duration}
-dt = 0.01
-initial_pose = [0.0, -0.2, 1.5707963267948966]
-[reference]
-kind = "lemniscate"
-size = 2.0
-period = 40.0
-[noise]
-pose_std = [0.01, 0.01, 0.01]
-"""
+SCENARIO = SHORT_LEMNISCATE
 PY = sys.executable
 #: How long a test waits for an engine to come up or a sweep to end [s].
 TIMEOUT = 240

@@ -193,6 +193,64 @@ def test_without_noise_zeroes_only_the_noise():
     assert q.reference == sc.reference and q.dt == sc.dt
 
 
+def test_with_process_std_changes_only_the_pose_filters_process_noise():
+    sc = scn.load(scn.builtin("sinusoid"))
+    v = jac.with_process_std(sc, 0.003)
+    assert v.estimator.process_std == (0.003, 0.003, 0.003)
+    assert dataclasses.replace(v, estimator=sc.estimator) == sc
+
+
+def test_target_noise_summary_is_the_pose_filters_differenced_error():
+    """Oracle: the pose filter's exact-model steady state (wmr.stability.
+    random_walk_increment_noise) gives the std of the targets' noise; a smaller process noise
+    smooths more and leaves less noise on the targets."""
+    from wmr import stability as stab
+
+    sc = _lemniscate(10.0)
+    got = {}
+    for std in jac.PROCESS_STD:
+        runs = [simulate(jac.with_process_std(sc, std), jac.CONTROLLER, seed) for seed in (0, 1)]
+        got[std] = jac.target_noise_summary(runs)
+        var, _ = stab.random_walk_increment_noise(std**2, sc.noise.pose_std[0] ** 2)
+        want = np.sqrt(var) * sc.noise.pose_std[0] / sc.dt
+        # 2 runs x 999 steps: the std of a std estimate ~2 %; the heading coupling ~1 %
+        assert_allclose(got[std]["noise_std"]["mean"], [want] * 3, rtol=0.06)
+        assert_allclose(got[std]["noise_rms_xy"]["mean"], np.sqrt(2) * want, rtol=0.06)
+    assert got[0.003]["noise_rms"]["mean"] < got[0.01]["noise_rms"]["mean"]
+    # the signal is the true velocity: a process-noise setting barely moves it (same reference)
+    assert_allclose(got[0.003]["signal_rms_xy"]["mean"], got[0.01]["signal_rms_xy"]["mean"],
+                    rtol=0.05)  # fmt: skip
+
+
+def _learned(**changes):
+    """A learned-Jacobian record whose rel. errors are ``changes`` (per entry: 3 values)."""
+    def entry(vals):
+        return {sc: {k: {"mean": v, "std": 0.0} for k in jac.LEARNED_KEYS}
+                for sc, v in zip(("a", "b", "c"), vals, strict=True)}
+
+    tn = {std: {sc: {"noise_rms_xy": {"mean": n}, "signal_rms_xy": {"mean": 0.5}}
+                for sc in ("a", "b", "c")} for std, n in (("0.01", 1.0), ("0.003", 0.4))}
+    return {"scenarios": entry(changes["default"]), "noise_free": entry(changes["quiet"]),
+            "process_noise": {"0.01": entry(changes["default"]), "0.003": entry(changes["low"])},
+            "oracle": entry(changes["oracle"]), "target_noise": tn,
+            "default_process_std": [[0.01] * 3] * 3}  # fmt: skip
+
+
+def test_the_explanation_is_chosen_by_the_numbers():
+    follows = jac._explanation(_learned(default=(2.5, 2.7, 2.7), low=(0.9, 0.5, 0.5),
+                                        oracle=(0.7, 0.4, 0.5), quiet=(0.9, 0.6, 0.7)))
+    assert "So most of the error at the defaults comes with the noise" in follows
+    assert "72–85 % of the default's error goes" in follows
+    assert "(the default)" in follows
+    partly = jac._explanation(_learned(default=(1.0, 1.0, 1.0), low=(0.9, 0.9, 0.9),
+                                       oracle=(0.7, 0.8, 0.6), quiet=(0.9, 0.6, 0.7)))
+    assert "So part of the error" in partly
+    against = jac._explanation(_learned(default=(1.0, 1.0, 1.0), low=(1.2, 0.5, 0.5),
+                                        oracle=(0.7, 0.4, 0.5), quiet=(0.9, 0.6, 0.7)))
+    assert "These numbers do not show the error following the noise" in against
+    assert "So most" not in against
+
+
 # ---------------------------------------------------------------------------------------------
 # The study shape
 # ---------------------------------------------------------------------------------------------
@@ -208,6 +266,11 @@ def test_quick_run_writes_its_files_and_checks(quick):
     assert record["learned_jacobian"]["seeds"] == jac.QUICK_SEEDS
     assert list(record["along_runs"]["scenarios"]) == list(scn.PAPER_SCENARIOS)
     assert record["figures"] == ["jacobians_errors.png", "jacobians_learned.png"]
+    learned = record["learned_jacobian"]
+    assert list(learned["process_noise"]) == [f"{s:g}" for s in jac.PROCESS_STD]
+    assert learned["process_noise"]["0.01"] == learned["scenarios"]  # same seeds, same runs
+    assert list(learned["oracle"]) == list(scn.PAPER_SCENARIOS)
+    assert set(learned["target_noise"]["0.003"]["sinusoid"]) >= {"noise_std", "signal_rms_xy"}
     for name in record["figures"]:
         assert (out / "figures" / name).is_file()
     assert (out / "tables" / "jacobians.md").read_text() == jac.table(loaded)
@@ -224,6 +287,14 @@ def test_check_fails_on_a_broken_along_run(quick):
     along["scenarios"]["sinusoid"]["error_dynamics_max_residual"]["corrected"] = 1e-6
     with pytest.raises(AssertionError, match="sinusoid: corrected error-dynamics"):
         jac.check({**record, "along_runs": along})
+
+
+def test_check_fails_when_the_default_process_noise_is_not_the_default_runs(quick):
+    _, record = quick
+    learned = json.loads(json.dumps(record["learned_jacobian"]))
+    learned["process_noise"]["0.01"]["sinusoid"]["rel_error"]["mean"] += 1.0
+    with pytest.raises(AssertionError, match="default process noise 0.01"):
+        jac.check({**record, "learned_jacobian": learned})
 
 
 @needs_paper

@@ -13,7 +13,7 @@ from numpy.testing import assert_allclose
 from wmr import ekf, loop, nn
 from wmr import scenario as scn
 from wmr import stability as stab
-from wmr.probes import PoseProbe, WeightProbe, identical_runs, identifier_pair
+from wmr.probes import PoseProbe, WeightProbe, identical_runs, identifier_pair, target_noise
 from wmr.scenario import Disturbance
 from wmr.sim import simulate
 
@@ -96,6 +96,23 @@ def test_identifier_pair_by_hand_across_the_heading_seam():
     assert_allclose(x, [0.5, -0.2, math.cos(math.pi - 0.01), math.sin(math.pi - 0.01)],
                     rtol=EXACT_RTOL)  # fmt: skip
     assert_allclose(d, [0.3, -0.1, 2.0], rtol=1e-9)  # 1e-9: (1.003 - 1.0) / dt loses digits
+
+
+def test_target_noise_is_the_identifier_pairs_target_minus_the_true_increment():
+    """Oracle: identifier_pair (the law's own target) minus the true increment, step by step,
+    across the heading seam; the first M rows of q are used (a run's q has one row more)."""
+    dt, rng = 0.01, np.random.default_rng(5)
+    q = np.cumsum(rng.normal(0, 0.01, (8, 3)), axis=0)
+    q[:, 2] += math.pi - 0.02  # the heading crosses +-pi
+    q_hat = q[:7] + rng.normal(0, 0.003, (7, 3))
+    q_hat[:, 2] = np.arctan2(np.sin(q_hat[:, 2]), np.cos(q_hat[:, 2]))
+    noise, signal = target_noise(q, q_hat, dt)
+    assert noise.shape == signal.shape == (6, 3)
+    for i in range(6):
+        _, d = identifier_pair(np.zeros(2), q_hat[i], q_hat[i + 1], dt)
+        _, true = identifier_pair(np.zeros(2), q[i], q[i + 1], dt)
+        assert_allclose(noise[i], d - true, rtol=0, atol=1e-12)  # ~1e-3 m / 1e-2 s, rounding
+        assert_allclose(signal[i], true, rtol=0, atol=1e-12)
 
 
 class _Innovation:

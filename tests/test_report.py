@@ -10,6 +10,7 @@ import shutil
 import types
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import analysis
@@ -99,3 +100,77 @@ def test_interrupted_reproduce_keeps_previous_results_and_a_rerun_completes(tmp_
     assert cli.main(argv) == 0
     assert (out / "results" / "rmse.csv").read_text() == "new\n"
     assert not (out / ".staging").exists()
+
+
+# --- The assumptions: what DA-NN can adapt to on the dynamic plant ----------------------------
+
+#: The FD step of wmr.identification.plant_jacobian gives ~1e-10 relative; over one step the
+#: heading turns by w dt <= ~5e-3 rad, which moves the (x, y) norm of the v column by ~1e-5.
+FD_RTOL, TURN_RTOL = 1e-7, 1e-4
+
+
+@pytest.mark.parametrize("k", [500, 3000], ids=["before the payload", "after the payload"])
+def test_dynamic_channels_give_the_true_robots_one_step_jacobian(k):
+    """Oracle: the true robot's step (wmr.plant) differentiated in the command by central
+    differences (wmr.identification.plant_jacobian), along a run of the shipped dynamic plant:
+    the heading row of the w column is g_w rho_w dt, the (x, y) part of the v column has norm
+    g_v rho_v dt, where the kinematic G has dt."""
+    import dataclasses
+
+    from wmr import scenario as scn
+    from wmr.identification import plant_jacobian
+    from wmr.sim import simulate
+
+    sc = scn.load(scn.builtin(report.DYNAMIC_SCENARIO))
+    run = simulate(sc, "backstepping", 0)
+    J = plant_jacobian(sc, run)(k, run.q[k], run.u[k], sc.dt)
+    dyn = sc.plant.dynamic
+    if k * sc.dt >= sc.plant.changes[0].at:
+        dyn = dataclasses.replace(dyn, **{key: v for key, v in sc.plant.changes[0].values.items()})
+    c = report.dynamic_channels(dyn, sc.dt)
+    assert J[2, 1] == pytest.approx(c["w"]["g"] * c["w"]["rho"] * sc.dt, rel=FD_RTOL)
+    assert np.hypot(*J[:2, 0]) == pytest.approx(c["v"]["g"] * c["v"]["rho"] * sc.dt,
+                                                rel=TURN_RTOL)  # fmt: skip
+    assert 0.0 < c["v"]["rho"] < 1.0 and c["v"]["g"] < 1.0  # a lag and a friction loss
+
+
+def test_the_kinematic_limit_of_the_dynamic_channels():
+    """A very fast inner loop without friction is the kinematic model: g = 1, rho -> 1."""
+    from wmr.scenario import PlantDynamic
+
+    c = report.dynamic_channels(PlantDynamic(bandwidth=(1e7, 1e7)), 0.01)
+    assert c["v"]["g"] == 1.0 and c["v"]["rho"] == pytest.approx(1.0, abs=1e-5)
+
+
+def test_assumptions_and_errata_are_computed_not_typed(tmp_path):
+    text = "\n".join(report._assumptions())
+    assert "lateral loop under-damped, ζ = k3/(2√k2) = 0.63" in text
+    assert "g ρ = 0.094/0.094" in text and "from 20 s" in text
+    assert "barely" not in text
+
+
+@needs_paper
+def test_e4_and_e7_state_the_records_numbers(tmp_path):
+    """E4 counts the scenarios where the PID family is best with and without feed-forward, E7
+    gives the largest P/I gain excursion: both read from the reproduction record."""
+    (tmp_path / "results").mkdir()
+    for stem in ("reproduction", "jacobians", "boundedness"):
+        shutil.copy(PAPER / "results" / f"{stem}.json", tmp_path / "results")
+    path = tmp_path / "results" / "reproduction.json"
+    rep = json.loads(path.read_text())
+    family = ["iapid-nn-dekf", "adaptive-pid", "pid"]
+    rep["feed_forward_best"] = {
+        "lemniscate": {"without": {"best": "backstepping"}, "with": {"best": "pid",
+                                                                     "on_variant": family}},
+        "sinusoid": {"without": {"best": "pid"}, "with": {"best": "adaptive-nn",
+                                                          "on_variant": family}},
+    }  # fmt: skip
+    for d in rep["gain_excursion"].values():
+        for r in d.values():
+            r["max_rel"] = dict.fromkeys(r["max_rel"], 0.0)
+    rep["gain_excursion"]["sinusoid"]["adaptive-pid"]["max_rel"]["Kiw"] = 0.123
+    path.write_text(json.dumps(rep))
+    text = "\n".join(report._errata(tmp_path))
+    assert "with it the PID family has the lowest mean position RMSE in 1 of 2 scenarios (1 of 2 " \
+           "without)" in text
+    assert "by at most 12.3 % over a run: see the verdict" in text and "barely" not in text

@@ -81,3 +81,65 @@ def test_tie_aware_check_ignores_noise_and_flags_significant_reversals():
                        ("backstepping", "adaptive-nn")}  # fmt: skip
     assert all(c["p_holm"] < st.ALPHA and c["mean_diff"] > 0
                for c in out["paper_ranking_contradicted"]["x"])  # fmt: skip
+
+
+# --- "the same controller": equivalence tests; the best controller with a variant --------------
+
+
+def _rows(controller, values, scenario="lemniscate", variant="default"):
+    return [Row(scenario, controller, variant, s, v, v, v, v, False, tail_x=v, tail_y=v,
+                tail_theta=v, tail_position=v) for s, v in enumerate(values)]  # fmt: skip
+
+
+def test_equivalence_is_the_tost_and_wilcoxon_of_wmr_stats_with_holm_over_the_family():
+    """Oracle: ``wmr.stats.tost``/``wilcoxon``/``holm`` called directly on the same per-seed
+    numbers.  IAPID and APID differ by +0.2 mm +- noise (equivalent at 1 mm, and detectable),
+    APID and the fixed PID by 3 mm (not equivalent)."""
+    from wmr import stats
+
+    rng = np.random.default_rng(3)
+    base = 0.05 + rng.normal(0, 1e-3, 20)
+    arms = {"iapid-nn-dekf": base + 2e-4 + rng.normal(0, 5e-5, 20), "adaptive-pid": base,
+            "pid": base + 3e-3 + rng.normal(0, 5e-5, 20)}  # fmt: skip
+    rows = [r for sc in ("lemniscate", "sinusoid") for c, v in arms.items()
+            for r in _rows(c, v, scenario=sc)]  # fmt: skip
+    eq = st.equivalence(st.by_run(rows), ["lemniscate", "sinusoid"], metrics=("position",))
+    got = eq["lemniscate"]["iapid-nn-dekf vs adaptive-pid"]["position"]
+    want = stats.tost(arms["iapid-nn-dekf"], arms["adaptive-pid"], st.MARGIN, st.ALPHA).to_json()
+    assert {k: got[k] for k in want} == want
+    d_a = arms["iapid-nn-dekf"] - arms["adaptive-pid"]
+    d_b = arms["adaptive-pid"] - arms["pid"]
+    assert got["wilcoxon_p"] == stats.wilcoxon(d_a)
+    # the family: 2 pairs x 2 scenarios, in (scenario, pair) order
+    family = [stats.wilcoxon(d) for d in (d_a, d_b, d_a, d_b)]
+    assert got["p_holm"] == stats.holm(family)[0]
+    assert got["equivalent"] and got["different"]
+    other = eq["sinusoid"]["adaptive-pid vs pid"]["position"]
+    assert not other["equivalent"] and other["different"]
+    assert other["ci_high"] < -st.MARGIN  # the 90 % interval lies below -1 mm
+
+
+def test_equivalence_leaves_out_a_pair_with_fewer_than_two_runs():
+    rows = _rows("adaptive-pid", [0.05]) + _rows("pid", [0.051])
+    assert st.equivalence(st.by_run(rows), ["lemniscate"]) == {}
+
+
+def test_lowest_mean_takes_the_variant_runs_where_a_controller_has_them():
+    """Feed-forward halves the PID's error: without it backstepping is best, with it the PID."""
+    rows = _rows("backstepping", [0.030, 0.032]) + _rows("pid", [0.050, 0.052])
+    rows += _rows("pid", [0.020, 0.022], variant="feed-forward")
+    table = st.by_run(rows)
+    names = ["backstepping", "pid"]
+    without = st.lowest_mean(table, "lemniscate", names)
+    with_ff = st.lowest_mean(table, "lemniscate", names, "feed-forward")
+    assert without["best"] == "backstepping" and without["mean"] == pytest.approx(0.031)
+    assert without["on_variant"] == names  # the default runs are the "variant" here
+    assert with_ff["best"] == "pid" and with_ff["mean"] == pytest.approx(0.021)
+    assert with_ff["on_variant"] == ["pid"]
+    assert with_ff["means"]["backstepping"] == pytest.approx(0.031)  # its default runs
+
+
+def test_a_diverged_controller_is_never_the_lowest_mean():
+    rows = _rows("backstepping", [0.030, 0.032]) + _rows("pid", [0.001, math.nan])
+    best = st.lowest_mean(st.by_run(rows), "lemniscate", ["backstepping", "pid"])
+    assert best["best"] == "backstepping" and best["means"]["pid"] is None

@@ -18,6 +18,7 @@ from typing import Any
 
 __all__ = [
     "FrozenMap",
+    "InputError",
     "SettingError",
     "from_table",
     "check",
@@ -70,6 +71,16 @@ def one_line(text: str) -> str:
     """
     text = str(text)
     return text if text.isprintable() else text.encode("unicode_escape").decode("ascii")
+
+
+class InputError(ValueError):
+    """Bad input from a file: ``source`` file, dotted ``key``, offending ``value`` (None: not
+    shown) and the ``reason``, as one line ``source: key = value: reason`` (DESIGN §3.2)."""
+
+    def __init__(self, source: str, key: str, value: Any, reason: str):
+        self.source, self.key, self.value, self.reason = source, key, value, reason
+        shown = "" if value is None else f" = {value!r}"
+        super().__init__(f"{one_line(source)}: {one_line(key)}{shown}: {reason}")
 
 
 class SettingError(ValueError):

@@ -48,10 +48,11 @@ def _jacobian(run, scenario) -> dict:
         return dict.fromkeys(_JACOBIAN_COLUMNS, math.nan)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         q = idf.jacobian_quality(run, idf.plant_jacobian(scenario, run), every=JACOBIAN_EVERY)
+        half = slice(len(q.t) // 2, None)
+        defined = np.isfinite(q.norm_ratio[half])  # steps where the true Jacobian is not zero
         means = {}
         for key in ("rel_error", "norm_ratio", "sign_v", "sign_w"):
-            x = getattr(q, key)
-            x = x[int(len(x) * 0.5) :]
+            x = getattr(q, key)[half][defined]
             x = x[np.isfinite(x)]
             means[key] = float(np.mean(x)) if x.size else math.nan
     return {f"jac_{k}": v for k, v in means.items()}

@@ -14,7 +14,9 @@ and what they saw at the previous step; the law's own logged numbers (``nn_error
   noise term and the network's prediction error against the true pose increment;
 - :class:`PoseProbe` reads the pose EKF (errata E9): NEES of the posterior and NIS of each
   update, and whether the weight covariance stays positive definite;
-- :func:`identifier_pair` gives the identifier's training pair of a step (its input and target).
+- :func:`identifier_pair` gives the identifier's training pair of a step (its input and target);
+- :func:`target_noise` splits the identifier's targets along a run into the true velocity and
+  the noise the pose estimate adds to it.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ from wmr.ekf import nees
 from wmr.kinematics import wrap_angle
 from wmr.result import RunResult
 
-__all__ = ["identifier_pair", "WeightProbe", "PoseProbe", "identical_runs"]
+__all__ = ["identifier_pair", "target_noise", "WeightProbe", "PoseProbe", "identical_runs"]
 
 
 def identifier_pair(u_prev: np.ndarray, q_hat_prev: np.ndarray, q_hat: np.ndarray,
@@ -63,6 +65,46 @@ def identifier_pair(u_prev: np.ndarray, q_hat_prev: np.ndarray, q_hat: np.ndarra
     return x, d
 
 
+def target_noise(q: np.ndarray, q_hat: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """The identifier's targets along a run, split into signal and noise.
+
+    The target of the weight filter's update at step ``k`` is ``d_k = (q_hat_k - q_hat_{k-1})/dt``
+    (:func:`identifier_pair`); what it should be is the true pose increment
+    ``s_k = (q_k - q_{k-1})/dt`` (headings wrapped).  The difference
+    ``v_k = d_k - s_k = ((q_hat_k - q_k) - (q_hat_{k-1} - q_{k-1}))/dt`` is the measurement noise
+    of the filter's measurement equation ``d_k = f(x_{k-1}) + v_k``: the pose estimate's error,
+    differenced and divided by ``dt``.
+
+    Parameters
+    ----------
+    q : ndarray, shape (M', 3), M' >= M
+        True poses [m, m, rad], rows ``t_0, t_1, ...`` (a run's ``q`` has one row more than its
+        ``q_hat``: the pose after the last step); the first ``M`` rows are used.
+    q_hat : ndarray, shape (M, 3)
+        The estimates the controller acted on, rows ``t_0 .. t_{M-1}``.
+    dt : float
+        Sample period [s].
+
+    Returns
+    -------
+    noise, signal : ndarray, shape (M - 1, 3)
+        ``v_k`` and ``s_k`` for ``k = 1 .. M - 1`` [m/s, m/s, rad/s] (row ``i`` is step
+        ``k = i + 1``: the filter updates of the run).
+    """
+    q_hat = np.asarray(q_hat, dtype=float)
+    q = np.asarray(q, dtype=float)[: len(q_hat)]
+    signal = np.diff(q, axis=0) / dt
+    signal[:, 2] = _wrap(np.diff(q[:, 2])) / dt
+    target = np.diff(q_hat, axis=0) / dt
+    target[:, 2] = _wrap(np.diff(q_hat[:, 2])) / dt
+    return target - signal, signal
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    """Angles [rad] wrapped to [-pi, pi] elementwise (``wrap_angle`` is scalar)."""
+    return np.arctan2(np.sin(a), np.cos(a))
+
+
 def identical_runs(a: RunResult, b: RunResult) -> bool:
     """Whether two runs are the same bit for bit: how they ended, their RMSE, every logged signal
     (poses, reference, estimates, inputs, controller state), the final controller state field by
@@ -92,7 +134,10 @@ class WeightProbe:
     eigenvalues of the prior ``P_{k|k-1} = P + Q`` (eq. 28, ``A = I``) and of the posterior; the
     achieved contraction ``alpha_k`` of (48) and ``||M_k||`` (``wmr.stability.kalman_contraction``);
     ``direct_gap = 1 - lambda_k`` from the stored ``P_{k|k}`` (``contraction_direct``); Theorem 1's
-    ``mu_k`` (``wmr.stability.noise_term``).  ``theta[k]`` holds the weights after the law at ``k``.
+    ``mu_k`` (``wmr.stability.noise_term``) and its parts ``mu_q = tr(Pi_{k+1} Q)`` and
+    ``ktpik[k] = K^T Pi_{k+1} K`` (3, 3) (``wmr.stability.noise_term_parts``), from which ``mu_k``
+    follows for any measurement-noise covariance.  ``theta[k]`` holds the weights after the law at
+    ``k``; ``nu[k]`` the innovation vector (3,).
 
     The identifier's innovation is rebuilt from what the probe saw at the previous step
     (:func:`identifier_pair`); the law's own norm of it is its logged signal ``nn_error``, to
@@ -111,7 +156,8 @@ class WeightProbe:
     """
 
     FIELDS = ("norm_H", "lmin_prior", "lmax_prior", "lmin_post", "lmax_post", "alpha_k", "norm_M",
-              "direct_gap", "nis", "innovation", "mu", "pred_error", "spd", "trace")  # fmt: skip
+              "direct_gap", "nis", "innovation", "mu", "pred_error", "spd", "trace",
+              "mu_q")  # fmt: skip
 
     def __init__(self, n_steps: int, n_weights: int, dt: float, every: int = 1):
         self.every = max(1, int(every))
@@ -119,6 +165,8 @@ class WeightProbe:
         self.a = {f: np.full(n_steps, np.nan) for f in self.FIELDS}
         self.theta = np.full((n_steps, n_weights), np.nan)
         self.q_true = np.full((n_steps, 3), np.nan)
+        self.nu = np.full((n_steps, 3), np.nan)  # the innovation vectors
+        self.ktpik = np.full((n_steps, 3, 3), np.nan)  # K^T Pi_{k+1} K (noise_term_parts)
         self._previous = None  # (u_{k-1}, q_hat_{k-1}) as the law remembered them
         self._active = False
 
@@ -149,6 +197,7 @@ class WeightProbe:
         self._H = H = p.H.copy()  # H_k: weight Jacobian at theta_{k|k-1} (scratch of the law)
         a["norm_H"][k] = np.linalg.norm(H, 2)
         nu = self._nu
+        self.nu[k] = nu
         a["innovation"][k] = math.sqrt(nu @ nu)
         S = H @ self._P_prior @ H.T + p.R
         a["nis"][k] = nu @ np.linalg.solve(S, nu)
@@ -180,6 +229,7 @@ class WeightProbe:
         P_next = P_post + Q  # the filter's own next prior, eq. (28) at k + 1
         a["direct_gap"][k] = 1.0 - stab.contraction_direct(M, Pp, P_next)
         a["mu"][k] = stab.noise_term(P_next, K, p.q_diag, R)
+        a["mu_q"][k], self.ktpik[k] = stab.noise_term_parts(P_next, K, p.q_diag)
 
 
 class PoseProbe:

@@ -24,12 +24,12 @@ import numpy as np
 from wmr import controllers
 from wmr._settings import (
     FrozenMap,
+    InputError,
     SettingError,
     check,
     from_table,
     nonnegative,
     number,
-    one_line,
     positive,
 )
 from wmr.kinematics import INTEGRATORS
@@ -64,13 +64,8 @@ MAX_STEPS = 100_000_000
 _STEP_TOL = 1e-9
 
 
-class ScenarioError(ValueError):
+class ScenarioError(InputError):
     """An unreadable or invalid scenario: ``source`` file, dotted ``key``, ``value``, ``reason``."""
-
-    def __init__(self, source: str, key: str, value: Any, reason: str):
-        self.source, self.key, self.value, self.reason = source, key, value, reason
-        shown = "" if value is None else f" = {value!r}"
-        super().__init__(f"{one_line(source)}: {one_line(key)}{shown}: {reason}")
 
 
 @dataclass(frozen=True)

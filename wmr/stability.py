@@ -54,9 +54,12 @@ __all__ = [
     "kalman_contraction",
     "ineq48_holds",
     "noise_term",
+    "noise_term_parts",
+    "noise_term_from_parts",
     "theorem1_bound",
     "chi2_band",
     "random_walk_consistency",
+    "random_walk_increment_noise",
     "CONSTANT_NAMES",
 ]
 
@@ -237,6 +240,46 @@ def noise_term(P_next: np.ndarray, K: np.ndarray, q_diag: np.ndarray, R: np.ndar
     return float(np.sum(Linv**2 * np.asarray(q_diag)[None, :]) + np.sum(LK**2))
 
 
+def noise_term_parts(P_next: np.ndarray, K: np.ndarray, q_diag: np.ndarray
+                     ) -> tuple[float, np.ndarray]:  # fmt: skip
+    """Theorem 1's noise term of one step split by noise source, for any measurement noise.
+
+    ``mu_k = tr(Pi_{k+1} Q_w) + tr(Pi_{k+1} K R_v K^T)`` (:func:`noise_term`) is linear in the
+    measurement-noise covariance ``R_v``: ``tr(Pi K R_v K^T) = sum_ij (R_v)_ij (K^T Pi K)_ij``
+    (both symmetric).  So one step's ``(tr(Pi_{k+1} Q_w), K^T Pi_{k+1} K)`` gives ``mu_k`` for
+    the filter's own ``R`` and for a measured noise covariance alike
+    (:func:`noise_term_from_parts`).
+
+    Parameters
+    ----------
+    P_next : ndarray, shape (n, n)
+        The next prior ``P_{k+1|k}`` (SPD).
+    K : ndarray, shape (n, m)
+        The Kalman gain of eq. (29).
+    q_diag : ndarray, shape (n,)
+        The diagonal of the process-noise covariance ``Q_w``.
+
+    Returns
+    -------
+    tuple
+        ``tr(Pi_{k+1} Q_w)`` (float) and ``K^T Pi_{k+1} K`` (ndarray, shape (m, m)).
+    """
+    L = np.linalg.cholesky(P_next)
+    Linv = sla.solve_triangular(L, np.eye(L.shape[0]), lower=True)
+    LK = Linv @ K
+    return float(np.sum(Linv**2 * np.asarray(q_diag)[None, :])), LK.T @ LK
+
+
+def noise_term_from_parts(tr_pi_q: float | np.ndarray, ktpik: np.ndarray,
+                          R: np.ndarray) -> float | np.ndarray:  # fmt: skip
+    """``mu_k = tr(Pi Q_w) + sum_ij R_ij (K^T Pi K)_ij`` from :func:`noise_term_parts`.
+
+    ``tr_pi_q`` scalar or shape (N,), ``ktpik`` shape (m, m) or (N, m, m), ``R`` (m, m): the
+    measurement-noise covariance the expectation is taken with.
+    """
+    return tr_pi_q + np.sum(np.asarray(ktpik) * np.asarray(R), axis=(-2, -1))
+
+
 def theorem1_bound(alpha: float, p_min: float, p_max: float, mu: float, e0_sq: float,
                    k: np.ndarray | float) -> dict:  # fmt: skip
     """The mean-square bound that Theorem 1's proof gives once (59) holds (E10 reading).
@@ -299,6 +342,31 @@ def random_walk_consistency(q: float, r: float) -> tuple[float, float]:
     rho = q / r
     K = 0.5 * (-rho + math.sqrt(rho * rho + 4.0 * rho))
     return 1.0 / (2.0 - K), 2.0 * (1.0 - K) / (2.0 - K)
+
+
+def random_walk_increment_noise(q: float, r: float) -> tuple[float, float]:
+    """Steady-state variance and lag-1 autocorrelation of the *increment* of a scalar
+    random-walk Kalman filter's error, when the true state has no process noise.
+
+    The filter of :func:`random_walk_consistency` (model ``x+ = x + w``, ``w ~ N(0, q)``,
+    measurement ``z = x + v``, ``v ~ N(0, r)``; steady gain ``K``, ``rho = q/r``,
+    ``K = (-rho + sqrt(rho^2 + 4 rho))/2``) has posterior error ``e_k = (1 - K) e_{k-1} + K v_k``
+    with variance ``s2 = r K / (2 - K)``.  Its increment ``d_k = e_k - e_{k-1} = -K e_{k-1} +
+    K v_k`` (what differencing the estimate adds to the true increment) has::
+
+        Var d = K^2 (s2 + r),
+        Cov(d_k, d_{k+1}) = K^2 ((1 - K) s2 - K r),
+        corr_1 = ((1 - K) s2 - K r) / (s2 + r).
+
+    Returns ``(Var d / r, corr_1)``: the variance in units of ``r`` and the lag-1
+    autocorrelation (negative: a differenced filter error is not white).
+    """
+    if not (q > 0 and r > 0):
+        raise ValueError(f"random_walk_increment_noise: need q > 0 and r > 0, got {q}, {r}")
+    rho = q / r
+    K = 0.5 * (-rho + math.sqrt(rho * rho + 4.0 * rho))
+    s2 = K / (2.0 - K)  # in units of r
+    return K * K * (s2 + 1.0), ((1.0 - K) * s2 - K) / (s2 + 1.0)
 
 
 def _norm_identity_minus(K: np.ndarray, H: np.ndarray) -> float:

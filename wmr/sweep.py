@@ -50,7 +50,7 @@ import numpy as np
 
 from wmr import controllers
 from wmr import scenario as scn
-from wmr._settings import one_line
+from wmr._settings import InputError, one_line
 
 __all__ = ["SweepError", "Factor", "Spec", "SweepJob", "load_spec", "loads_spec", "design_points",
            "COLUMNS", "jobs", "run_sweep_job", "job_rows", "check_out", "run_sweep", "read_rows",
@@ -64,13 +64,8 @@ COLUMNS = ("rmse_x", "rmse_y", "rmse_theta", "rmse_position", "tail_x", "tail_y"
 _TOP_KEYS = {"name", "scenarios", "controllers", "seeds", "design", "factors", "measures"}
 
 
-class SweepError(ValueError):
+class SweepError(InputError):
     """An invalid spec: ``source`` file, dotted ``key``, ``value``, ``reason`` (one line)."""
-
-    def __init__(self, source: str, key: str, value: Any, reason: str):
-        self.source, self.key, self.value, self.reason = source, key, value, reason
-        shown = "" if value is None else f" = {value!r}"
-        super().__init__(f"{one_line(source)}: {one_line(key)}{shown}: {reason}")
 
 
 @dataclass(frozen=True)
@@ -531,18 +526,24 @@ def replace_duration(sc: scn.Scenario, steps: int) -> scn.Scenario:
     return dataclasses.replace(sc, duration=steps * sc.dt)
 
 
-def batches(spec: Spec, todo: Sequence[int], costs: dict, seconds: float) -> list[list[int]]:
+def batches(spec: Spec, todo: Sequence[int], costs: dict, seconds: float,
+            workers: int = 1) -> list[list[int]]:  # fmt: skip
     """Consecutive ``todo`` jobs in batches of about ``seconds`` of work each (estimated from
-    ``costs``); rows do not depend on the batching."""
-    out, current, load = [], [], 0.0
-    for j in todo:
-        point, s, c, _ = spec.job(j)
-        sc = spec.runs[point][s]
-        current.append(j)
-        load += sc.n_steps * costs[(spec.controllers[c], sc.plant.ideal)]
-        if load >= seconds:
+    ``costs``), shrinking toward the end (guided scheduling: a batch holds at most a
+    ``1 / (2 workers)`` share of the work left, so the last batches are short and no worker
+    idles long while another finishes).  Rows do not depend on the batching."""
+    load = [spec.runs[p][s].n_steps * costs[(spec.controllers[c], spec.runs[p][s].plant.ideal)]
+            for p, s, c, _ in map(spec.job, todo)]  # fmt: skip
+    left = float(sum(load))
+    share = 1.0 / (2 * max(1, int(workers)))
+    out, current, acc = [], [], 0.0
+    for j, cost in zip(todo, load, strict=True):
+        if current and acc + cost > min(seconds, share * left):
             out.append(current)
-            current, load = [], 0.0
+            left -= acc
+            current, acc = [], 0.0
+        current.append(j)
+        acc += cost
     if current:
         out.append(current)
     return out
@@ -575,7 +576,7 @@ def run_sweep(spec: Spec, out: str | Path, *, workers: int | None = None,
              for c in spec.controllers}  # fmt: skip
     with study.engine(workers, scheduler) as eng:
         eng.run_everywhere(study.warm_up, list(pairs.values()))
-        groups = batches(spec, todo, _costs(spec), batch_seconds) if todo else []
+        groups = batches(spec, todo, _costs(spec), batch_seconds, eng.workers) if todo else []
         keys = [f"wmr-sweep-{spec.digest[:12]}-{g[0]}-{g[-1]}-{len(g)}" for g in groups]
         bar = study.Progress(len(todo), f"sweep {spec.name}", progress)
         buffer, last, t_run = [], time.perf_counter(), time.perf_counter()

@@ -12,6 +12,42 @@ state of an EKF with the paper's ``P0, Q, R`` (eq. 63): at step ``k`` the "measu
 reference pose ``q_r,k`` the last input should have reached, the model is the pose it reached,
 ``h(theta) = q_hat_k`` with ``dh/dtheta = J_{k-1} dNN_c/dtheta(phi_{k-1})`` (``J`` the exact
 ZOH plant Jacobian), and the innovation is ``q_r,k - q_hat_k`` (heading wrapped).
+
+What it adapts to, read off these equations.  The network's input is ``phi_{k-1}`` (the tracking
+error and the reference velocities at ``t_{k-1}``; not the measured velocity, nor the reference's
+accelerations); its output is an additive correction ``z = NN_c(phi)`` of the velocity command
+``(v, w)``; its target, through the EKF, is the correction ``dz`` that would have removed the
+one-step tracking error through the *nominal* unicycle, ``q_r,k - q_hat_k ~ G_{k-1} dz``
+(``G = dq_{k+1}/du_k`` of the kinematic ZOH step, ``wmr.kinematics.step_jacobians``).  So it
+compensates the error the base backstepping law leaves, as a static function of
+``(e, v_r, w_r)``, assuming a command changes the pose within one step as the kinematic model
+says.
+
+On the dynamic plant (``model = "dynamic"``, ``wmr.plant``) the command ``a`` is a set-point of
+an inner velocity loop: per channel ``mass v' = nominal_mass bw (a - v) - f v``, a first-order lag
+with time constant ``tau = mass / (nominal_mass bw + f)`` and static gain
+``g = nominal_mass bw / (nominal_mass bw + f)`` (likewise ``w`` with the inertia).  Hence:
+
+- the command's effect within one step is ``d(int_0^dt v)/da = g (dt - tau (1 - exp(-dt/tau)))
+  = rho g dt`` with ``rho = 1 - (tau/dt)(1 - exp(-dt/tau))``: the true one-step Jacobian's
+  ``v`` column is ``g rho`` times ``G``'s on a straight line (and the ``w`` column's heading
+  entry likewise), so the EKF's ``H`` has the right sign per channel but overstates the effect
+  by ``1 / (g rho)`` (about 10 for ``tau = 50 ms``, ``dt = 10 ms``), and a correction keeps
+  acting on later steps through the velocity state, which the one-step model does not see;
+- a **static velocity deficit** (friction: ``v -> g a`` in steady state, so tracking ``v_r``
+  needs ``a = v_r / g``) is a function of ``v_r`` and ``w_r``, which are inputs: the network can
+  represent its compensation ``(1/g - 1) v_r``, and re-learn it after a payload change changes
+  ``g``, at the pace its EKF allows;
+- the **lag** itself cannot be cancelled: a command that leads the lag, ``a ~ (v_r + tau v_r')/g``,
+  needs the reference's acceleration (or the measured velocity), neither of which is an input;
+  the network can only reshape the feedback on ``e`` (in effect retune the backstepping gains)
+  along the trajectory it is trained on.
+
+It is therefore not the torque-level compensator of Fierro & Lewis (whose network sees the
+velocities and the derivative of the kinematic command and outputs torques): on the dynamic
+plant it compensates static gain errors and whatever part of the lag's effect is a function of
+``(e, v_r, w_r)`` along the run.  ``analysis/report.py`` evaluates ``tau``, ``g`` and ``rho`` for
+the shipped dynamic plant.
 """
 
 from __future__ import annotations
