@@ -66,6 +66,19 @@ def test_local_cluster_gives_the_serial_rows(serial, tmp_path):
     assert _rows(tmp_path / "out").equals(serial)
 
 
+def _malloc_trim():
+    return os.environ.get("MALLOC_TRIM_THRESHOLD_")
+
+
+def test_local_cluster_workers_keep_glibc_malloc_defaults():
+    """Dask's nanny would set MALLOC_TRIM_THRESHOLD_ in its workers (numpy-heavy set-up 3-4x
+    slower there); the engine's LocalCluster leaves it unset, and does not set it here either."""
+    before = _malloc_trim()
+    with study.engine(2) as eng:
+        assert set(eng.client.run(_malloc_trim).values()) == {None}
+    assert _malloc_trim() == before
+
+
 def test_run_jobs_on_a_local_cluster_equals_serial():
     sc = scn.loads(SCENARIO.format(duration=6.0))  # past the transient: no NaN in the rows
     jobs = [study.Job(sc, c, s) for c in ("pid", "adaptive-nn") for s in range(5)]

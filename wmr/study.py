@@ -60,6 +60,14 @@ RETRIES = 2
 #: Environment of Dask worker processes: one BLAS thread each (a process per core already).
 WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
+#: Dask configuration under which a ``LocalCluster`` starts its workers.  Dask's nanny sets
+#: ``MALLOC_TRIM_THRESHOLD_=65536`` in a worker's environment before it starts; with any such
+#: setting glibc stops adapting its mmap threshold, so every large numpy array becomes a fresh
+#: mmap (page faults on each allocation): numpy-heavy code measured 3-4x slower in such a
+#: worker than in the driver, and the sweep's set-up per run (the reference's columns) with it.
+#: ``None`` leaves glibc's default (docs/scaling.md: the same for a nanny on a real cluster).
+LOCAL_CLUSTER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+
 
 @dataclass(frozen=True)
 class Job:
@@ -190,6 +198,7 @@ class DaskEngine(Engine):
     ``scheduler`` (its workers must import the same ``wmr``)."""
 
     def __init__(self, workers: int | None = None, scheduler: str | None = None):
+        import dask
         from distributed import Client, LocalCluster
 
         self.cluster = None
@@ -198,9 +207,10 @@ class DaskEngine(Engine):
             self.name = f"dask scheduler {scheduler}"
         else:
             n = default_workers() if workers is None else int(workers)
-            self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                        dashboard_address=":0", silence_logs=logging.ERROR,
-                                        env=dict(WORKER_ENV))  # fmt: skip
+            with dask.config.set(LOCAL_CLUSTER_CONFIG):
+                self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                            dashboard_address=":0", silence_logs=logging.ERROR,
+                                            env=dict(WORKER_ENV))  # fmt: skip
             self.client = Client(self.cluster, set_as_default=False)
             self.name = f"dask LocalCluster ({n} worker processes)"
         self.workers = max(1, len(self.client.scheduler_info(n_workers=-1)["workers"]))

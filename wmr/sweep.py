@@ -591,8 +591,8 @@ def run_sweep(spec: Spec, out: str | Path, *, workers: int | None = None,
         finally:
             write_shard(out, spec, buffer)  # what is complete is kept, even on an interrupt
             bar.close()
+        run_s = time.perf_counter() - t_run  # the engine's start and stop are in ``seconds``
         manifest.update(engine=eng.name, workers=eng.workers)
-    run_s = time.perf_counter() - t_run
     done = finished_jobs(out)
     manifest.update(_manifest(spec, done, started=manifest["started"]),
                     engine=manifest["engine"], workers=manifest["workers"],
