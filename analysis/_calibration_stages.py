@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -112,6 +113,17 @@ def numbers(arr: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(x), x, prior.DIVERGED_RMSE).reshape(arr.shape[0], 36)
 
 
+def diverged(arr: np.ndarray) -> np.ndarray:
+    """Whether each of the 36 numbers of each seed's runs diverged, shape (n_seeds, 36)."""
+    return ~np.isfinite(arr[:, :, :3]).reshape(arr.shape[0], 36)
+
+
+def _within(mean, sd_eff, div, n_seeds: int, z: float) -> np.ndarray:
+    """A number is matched when the paper's value lies within its tolerance of our mean and
+    none of its seeds diverged (a diverged seed would widen the band to anything)."""
+    return (np.abs(mean - prior.PAPER) <= prior.tolerance(sd_eff, n_seeds, z)) & ~div
+
+
 def _log_position(arr: np.ndarray) -> np.ndarray:
     p = arr[:, :, 3]
     return np.log(np.where(np.isfinite(p), p, prior.DIVERGED_RMSE)).reshape(-1, 3, 4)
@@ -174,16 +186,25 @@ def screening(ev, level: Level) -> dict:
 # 2. The design: feasibility and coverage
 
 
-def _feasibility(nums: np.ndarray) -> dict:
-    """Per point: mean, tolerance, within; and the pooled seed spread (see the record)."""
+def _feasibility(nums: np.ndarray, div: np.ndarray) -> dict:
+    """Per point: mean, tolerance, within (joint 95 %: :data:`prior.Z_JOINT`; and per number
+    at :data:`prior.Z_SEED`); the pooled seed spread (see the record).  ``div``: (p, s, 36)."""
     n_p, n_s, _ = nums.shape
     mean = nums.mean(axis=1)
     sd = nums.std(axis=1, ddof=1) if n_s > 1 else np.zeros_like(mean)
-    cv = np.median(sd / mean, axis=0) if n_s > 1 else np.zeros(36)
+    ok = ~div.any(axis=1)  # the pooled spread from points where the number never diverged
+    if n_s > 1 and ok.any():
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a number diverged everywhere
+            cv = np.nan_to_num(np.nanmedian(np.where(ok, sd / mean, np.nan), axis=0))
+    else:
+        cv = np.zeros(36)
     sd_eff = np.maximum(sd, cv * mean)
-    tol = prior.tolerance(sd_eff, n_s)
-    within = np.abs(mean - prior.PAPER) <= tol
-    return {"mean": mean, "sd": sd_eff, "tol": tol, "within": within, "cv": cv}
+    any_div = div.any(axis=1)
+    return {"mean": mean, "sd": sd_eff, "tol": prior.tolerance(sd_eff, n_s),
+            "within": _within(mean, sd_eff, any_div, n_s, prior.Z_JOINT),
+            "within_per_number": _within(mean, sd_eff, any_div, n_s, prior.Z_SEED),
+            "any_diverged": any_div, "cv": cv}
 
 
 def design(ev, level: Level, space: Space) -> dict:
@@ -195,23 +216,27 @@ def design(ev, level: Level, space: Space) -> dict:
     res = ev.evaluate([space.task(x, level.seeds) for x in U], "design")
     nums = np.stack([numbers(a) for a in res])
     status = np.stack([a[..., -1] for a in res])
-    feas = _feasibility(nums)
+    feas = _feasibility(nums, np.stack([diverged(a) for a in res]))
     disc = prior.discrepancy(feas["mean"])
     return {"u": U, "A": A, "B": B, "results": res, "nums": nums, "status": status, **feas,
             **disc}  # fmt: skip
 
 
 def coverage(des: dict) -> dict:
-    """Per number: the range its mean spans over the design against the paper's value."""
+    """Per number: the range its mean spans over the design (points where none of its seeds
+    diverged) against the paper's value, and at how many points it is matched."""
     mean, within = des["mean"], des["within"]
     out = {}
     for i, name in enumerate(prior.NUMBER_NAMES):
-        m = mean[:, i]
+        m = mean[~des["any_diverged"][:, i], i]
+        m = m if m.size else np.array([np.nan])
         q = np.quantile(m, [0.05, 0.5, 0.95])
         out[name] = {"paper": float(prior.PAPER[i]), "min": float(m.min()),
                      "max": float(m.max()), "q05": float(q[0]), "median": float(q[1]),
                      "q95": float(q[2]), "spanned": bool(m.min() <= prior.PAPER[i] <= m.max()),
-                     "n_reached": int(within[:, i].sum())}  # fmt: skip
+                     "n_reached": int(within[:, i].sum()),
+                     "n_reached_per_number": int(des["within_per_number"][:, i].sum()),
+                     "n_diverged": int(des["any_diverged"][:, i].sum())}  # fmt: skip
     return out
 
 
@@ -261,12 +286,27 @@ def sensitivity(ev, level: Level, space: Space, des: dict) -> dict:
                      f"({methods.BOOTSTRAP} resamples of the rows, seeded)",
            "outputs": list(OUTPUTS), "factors": list(space.names), "seed": int(level.seeds[0]),
            "runs": int((d + 2) * n * 12)}  # fmt: skip
-    for label, m in (("N", n), ("N/2", n // 2)):
-        ix = methods.sobol_indices(f_a[:, :m], f_b[:, :m], f_ab[..., :m])
-        out[label] = {"n": m, "indices": _indices_json(ix, space.names, OUTPUTS, keep)}
+    h = n // 2
+    parts = {"N": slice(0, n), "N/2": slice(0, h), "first half": slice(0, h),
+             "second half": slice(h, n)}  # fmt: skip
+    for label, sl in parts.items():
+        ix = methods.sobol_indices(f_a[:, sl], f_b[:, sl], f_ab[..., sl])
+        varies = keep & (np.var(np.concatenate([f_a[:, sl], f_b[:, sl]], axis=1), axis=1) > 0)
+        out[label] = {"n": sl.stop - sl.start,
+                      "indices": _indices_json(ix, space.names, OUTPUTS, varies)}  # fmt: skip
     hit, tot = _agree(out["N"]["indices"], out["N/2"]["indices"])
     out["convergence"] = {"intervals_overlapping": hit, "intervals": tot,
-                          "fraction": hit / tot if tot else None}  # fmt: skip
+                          "fraction": hit / tot if tot else None,
+                          "note": "N/2 is nested in N: overlap is expected; the independent "
+                                  "halves below are the test"}  # fmt: skip
+    hit, tot = _agree(out["first half"]["indices"], out["second half"]["indices"])
+    widths = [x[f"{k}_high"] - x[f"{k}_low"] for fa in out["N"]["indices"].values() if fa
+              for x in fa.values() for k in ("first", "total")]  # fmt: skip
+    out["independent_halves"] = {"intervals_overlapping": hit, "intervals": tot,
+                                 "fraction": hit / tot if tot else None,
+                                 "median_interval_width_at_N": float(np.median(widths))
+                                 if widths else None}  # fmt: skip
+    del out["first half"]["indices"], out["second half"]["indices"]  # the agreement is kept
     return out
 
 
@@ -285,10 +325,17 @@ def ranking(des: dict, level: Level) -> dict:
         yield from rec["per_table"].items()
         yield from rec["pairwise"].items()
 
-    a, b = dict(probs(full)), dict(probs(half))
-    agree = [a[k]["ci_low"] <= b[k]["ci_high"] and b[k]["ci_low"] <= a[k]["ci_high"] for k in a]
-    return {**full, "half": half, "convergence": {"agreeing": int(sum(agree)),
-                                                  "compared": len(agree)}}  # fmt: skip
+    other = methods.order_stats(des["nums"][len(des["A"]):], prior.PAPER, prior.CONTROLLERS,
+                                prior.SCENARIOS, prior.AXES)  # fmt: skip
+
+    def agree(x, y):
+        a, b = dict(probs(x)), dict(probs(y))
+        ok = [a[k]["ci_low"] <= b[k]["ci_high"] and b[k]["ci_low"] <= a[k]["ci_high"] for k in a]
+        return {"agreeing": int(sum(ok)), "compared": len(ok)}
+
+    return {**full, "half": half, "convergence": {**agree(full, half),
+                                                  "note": "A is nested in the design"},
+            "independent_halves": agree(half, other)}  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------
@@ -330,16 +377,18 @@ def fit(ev, level: Level, space: Space, des: dict) -> dict:
                        "settings": _jsonable(space.values(res.x))})  # fmt: skip
     best = min(starts, key=lambda r: r["rms_log_ratio"])
     arr = ev.evaluate([space.task(best["u"], level.fit_seeds)], "best fit")[0]
-    nums = numbers(arr)
+    nums, div = numbers(arr), diverged(arr).any(axis=0)
     mean, sd = nums.mean(axis=0), nums.std(axis=0, ddof=1) if len(nums) > 1 else np.zeros(36)
     sd_eff = np.maximum(sd, des["cv"] * mean)
     tol = prior.tolerance(sd_eff, len(nums))
     lr = prior.log_ratios(mean)
-    within = np.abs(mean - prior.PAPER) <= tol
+    within = _within(mean, sd_eff, div, len(nums), prior.Z_JOINT)
+    within_1 = _within(mean, sd_eff, div, len(nums), prior.Z_SEED)
     residuals = {name: {"paper": float(prior.PAPER[i]), "mean": float(mean[i]),
                         "sd": float(sd[i]), "log_ratio": float(lr[i]),
                         "ratio": float(np.exp(lr[i])), "tolerance": float(tol[i]),
-                        "within": bool(within[i])}
+                        "within": bool(within[i]), "within_per_number": bool(within_1[i]),
+                        "diverged_seeds": int(diverged(arr)[:, i].sum())}
                  for i, name in enumerate(prior.NUMBER_NAMES)}  # fmt: skip
     return {"settings": best["settings"], "u": best["u"], "varied": list(space.names),
             "rms_log_ratio": float(np.sqrt(np.mean(lr**2))),
@@ -347,6 +396,7 @@ def fit(ev, level: Level, space: Space, des: dict) -> dict:
             "rms_log_ratio_at_design_seeds": best["rms_log_ratio"],
             "best_design_rms_log_ratio": float(des["rms_log_ratio"][best_design[0]]),
             "seeds": list(level.fit_seeds), "n_within": int(within.sum()),
+            "n_within_per_number": int(within_1.sum()),
             "feasible": bool(within.all()), "residuals": residuals,
             "per_seed": nums.tolist(), "n_diverged": int(np.sum(arr[..., -1] != 0)),
             "starts": starts, "population": pop, "generations": level.fit_maxiter,

@@ -79,12 +79,20 @@ def run_task(task: Task) -> tuple[str, np.ndarray]:
 
 
 def store_digest(extra: str = "") -> str:
-    """What the results depend on: wmr's sources and the calibration study's own modules."""
+    """What the runs of a task depend on: wmr's sources, the prior (settings to scenarios,
+    ``_calibration_prior.py``), the fair tuning's trajectories and gain ranges
+    (``_calibration_fair.py``), :func:`run_task` and :data:`METRICS`; and ``extra``.  The
+    stages that only summarise runs are not in it: changing them reuses the store."""
+    import inspect
+
     from wmr._jit import source_digest
 
     h = hashlib.sha256(source_digest().encode())
-    for path in sorted(Path(__file__).resolve().parent.glob("_calibration_prior.py")):
-        h.update(path.read_bytes())
+    here = Path(__file__).resolve().parent
+    for name in ("_calibration_prior.py", "_calibration_fair.py"):
+        h.update((here / name).read_bytes())
+    h.update(inspect.getsource(run_task).encode())
+    h.update(repr(METRICS).encode())
     h.update(extra.encode())
     return h.hexdigest()[:16]
 
@@ -132,19 +140,19 @@ class Evaluator:
     def __init__(self, folder: str | Path, digest: str, workers: int | None = None,
                  scheduler: str | None = None, flush_seconds: float = 30.0,
                  progress: bool | None = None):  # fmt: skip
-        from wmr.io import write_json
-
         self.folder, self.digest = Path(folder), digest
         self.workers, self.scheduler = workers, scheduler
         self.flush_seconds, self.progress = flush_seconds, progress
-        manifest = self.folder / "manifest.json"
-        if manifest.exists():
-            stored = json.loads(manifest.read_text()).get("digest")
-            if stored != digest:
-                raise ValueError(f"{self.folder} holds a calibration store of another version "
-                                 f"({stored} != {digest}): give another folder")  # fmt: skip
+        self.manifest = self.folder / "manifest.json"
+        old = json.loads(self.manifest.read_text()) if self.manifest.exists() else {}
+        if old and old.get("digest") != digest:
+            raise ValueError(f"{self.folder} holds a calibration store of another version "
+                             f"({old.get('digest')} != {digest}): give another folder")  # fmt: skip
         (self.folder / "rows").mkdir(parents=True, exist_ok=True)
-        write_json(manifest, {"digest": digest, "kind": "wmr calibration store"})
+        #: every invocation's runs and seconds of running, summed (the study's whole cost)
+        self.totals = {"runs": int(old.get("runs_total", 0)),
+                       "seconds_running": float(old.get("seconds_running_total", 0.0))}
+        self._write_manifest()
         self.cache = read_store(self.folder)
         self.loaded = len(self.cache)
         self.runs_this_time, self.seconds, self.engine_name = 0, 0.0, "none (all from the store)"
@@ -213,7 +221,17 @@ class Evaluator:
                 bar.close()
             self.runs_this_time += n_runs
             self.seconds += time.perf_counter() - t0
+            self.totals["runs"] += n_runs
+            self.totals["seconds_running"] += time.perf_counter() - t0
+            self._write_manifest()
         return [self.cache[t.key] for t in tasks]
+
+    def _write_manifest(self) -> None:
+        from wmr.io import write_json
+
+        write_json(self.manifest, {"digest": self.digest, "kind": "wmr calibration store",
+                                   "runs_total": self.totals["runs"],
+                                   "seconds_running_total": self.totals["seconds_running"]})
 
     def _write(self, done: list[tuple[Task, np.ndarray]]) -> None:
         import pyarrow as pa

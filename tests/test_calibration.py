@@ -152,7 +152,9 @@ def test_tolerance_is_rounding_plus_seed_spread_of_one_run():
     tol = prior.tolerance(np.zeros(36), 2)
     assert np.array_equal(tol, prior.ROUNDING)
     sd = np.full(36, 0.01)
-    tol = prior.tolerance(sd, 4)
+    tol = prior.tolerance(sd, 4)  # by default at the joint level
+    assert tol == pytest.approx(prior.ROUNDING + prior.Z_JOINT * 0.01 * math.sqrt(1.25))
+    tol = prior.tolerance(sd, 4, prior.Z_SEED)
     assert tol == pytest.approx(prior.ROUNDING + prior.Z_SEED * 0.01 * math.sqrt(1.25))
 
 
@@ -244,6 +246,45 @@ def test_order_stats_at_the_paper_and_its_reverse():
     assert rec["iapid_first_any"]["p"] == 0.0  # IAPID is last everywhere
     pw = rec["pairwise"]["iapid-nn-dekf < adaptive-pid"]
     assert pw["p"] == 0.0 and pw["paper"] == 1.0
+
+
+def test_order_stats_count_a_tie_as_no_order():
+    """All four equal (e.g. all diverged): no order holds and IAPID is not first."""
+    tied = np.full((4, 2, 36), 10.0)
+    rec = methods.order_stats(tied, prior.PAPER, prior.CONTROLLERS, prior.SCENARIOS, prior.AXES)
+    assert rec["all_nine"]["p"] == 0.0 and rec["iapid_first_any"]["p"] == 0.0
+    # IAPID tied with one other for the lowest: still not first
+    x = np.broadcast_to(prior.PAPER, (4, 2, 36)).copy().reshape(4, 2, 3, 4, 3)
+    x[:, :, :, 1, :] = x[:, :, :, 0, :]
+    rec = methods.order_stats(x.reshape(4, 2, 36), prior.PAPER, prior.CONTROLLERS,
+                              prior.SCENARIOS, prior.AXES)  # fmt: skip
+    assert rec["iapid_first_any"]["p"] == 0.0
+
+
+def test_joint_tolerance_level_is_sidak_over_36():
+    from scipy.stats import norm
+
+    per = 2 * norm.cdf(prior.Z_JOINT) - 1  # coverage of one band
+    assert per**36 == pytest.approx(prior.JOINT_LEVEL, rel=1e-12)
+    assert (2 * norm.cdf(prior.Z_SEED) - 1) ** 36 < 0.2  # per-number bands: joint ~19 %
+
+
+def test_a_diverged_seed_never_counts_as_matched():
+    """One seed at the paper's value and one diverged: the mean and sd are huge, the band wide
+    enough to hold the paper's number, yet it is not matched."""
+    from analysis import _calibration_stages as stages
+
+    arr = np.full((2, 12, 7), np.nan)  # seeds, cases, metrics + status
+    arr[0, :, :3] = prior.PAPER.reshape(12, 3)
+    arr[0, :, 3:] = 1.0
+    arr[1, 0, :3] = np.nan  # seed 1, case 0 diverged; the rest at the paper's values
+    arr[1, 1:, :3] = prior.PAPER.reshape(12, 3)[1:]
+    arr[1, 1:, 3:] = 1.0
+    nums, div = stages.numbers(arr)[None], stages.diverged(arr)[None]
+    feas = stages._feasibility(nums, div)
+    assert np.all(np.abs(feas["mean"][0, :3] - prior.PAPER[:3]) <= feas["tol"][0, :3])
+    assert not feas["within"][0, :3].any() and feas["within"][0, 3:].all()
+    assert not feas["within_per_number"][0, :3].any()
 
 
 def test_bootstrap_interval_is_seeded_and_covers_the_mean():
@@ -385,6 +426,37 @@ def _points_agree(record: dict, out: Path) -> None:
         assert len(pts[name]) == n
 
 
+def _rerun_points(record: dict, out: Path, indices) -> None:
+    """Rebuild design points from the record alone (the design's seed, the settings varied and
+    those fixed, the seeds) and run them here: their settings, rms log ratio and count of
+    numbers within tolerance are the points file's (the record is what its runs give)."""
+    from analysis import _calibration_methods as methods
+    from analysis import _calibration_stages as stages
+    from analysis._calibration_store import run_task
+    from analysis.calibration import read_points
+
+    level = stages.FULL if record["level"] == "full" else stages.QUICK
+    varied = record["points"]["varied"]
+    space = stages.Space.of(level, varied, record["screening"]["fixed_at"])
+    a, b = methods.sobol_design(len(varied), level.design_m, seed=stages.DESIGN_SEED)
+    u = np.vstack([a, b])
+    assert len(u) == record["points"]["n"]
+    pts = read_points(out, record)
+    cv = np.array(list(record["tolerance"]["pooled_cv"].values()))
+    for i in indices:
+        for name, value in space.values(u[i]).items():
+            if name in varied and not isinstance(value, (str, bool)):
+                assert pts[name][i] == pytest.approx(float(value), rel=1e-6), (i, name)
+        _, arr = run_task(space.task(u[i], record["seeds"]))
+        nums, div = stages.numbers(arr), stages.diverged(arr).any(axis=0)
+        mean = nums.mean(axis=0)
+        sd = nums.std(axis=0, ddof=1) if len(nums) > 1 else np.zeros(36)
+        within = stages._within(mean, np.maximum(sd, cv * mean), div, len(nums), prior.Z_JOINT)
+        rms = float(prior.discrepancy(mean)["rms_log_ratio"])
+        assert pts["rms_log_ratio"][i] == pytest.approx(rms, rel=1e-6), i
+        assert pts["n_within"][i] == int(within.sum()), i
+
+
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
     from analysis import calibration
@@ -404,6 +476,7 @@ def test_quick_study_is_whole_and_checks(quick):
     assert (out / "tables" / "calibration.md").exists()
     assert json.loads((out / "results" / "calibration.json").read_text()) == record
     _points_agree(record, out)
+    _rerun_points(record, out, [0, record["feasible"]["best_point"]["index"]])
     # the fit's settings are the scenario files it wrote
     for f in record["best_fit"]["scenario_files"]:
         sc = scn.load(out / f)
@@ -449,6 +522,15 @@ def test_committed_record_checks_and_its_files_agree():
     calibration.check(record)
     _points_agree(record, ROOT / "paper")
     assert record["points"]["n"] >= 4096
+
+
+@pytest.mark.skipif(not COMMITTED.exists(), reason="no committed calibration record")
+def test_committed_record_is_what_its_runs_give():
+    """Three design points rebuilt from the committed record and run again (2 seeds x 12 runs
+    each) give the committed points file's values: the best point, the first and the last."""
+    record = json.loads(COMMITTED.read_text())
+    n = record["points"]["n"]
+    _rerun_points(record, ROOT / "paper", [record["feasible"]["best_point"]["index"], 0, n - 1])
 
 
 @pytest.mark.skipif(not COMMITTED.exists(), reason="no committed calibration record")
