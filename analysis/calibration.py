@@ -418,7 +418,7 @@ def _answer_tables(r: dict) -> list[str]:
         "ratio band, all 36 lie within a factor " + ", ".join(
             f"{f}: {k} points" for f, k in wf.items()) + ".  Taken apart, the 12 numbers of "
         "one table are matched at " + ", ".join(
-            f"{k} points ({s})" for s, k in feas["per_table"].items())
+            f"{k} point{'s' if k != 1 else ''} ({s})" for s, k in feas["per_table"].items())
         + "; the 9 numbers of one controller at " + ", ".join(
             f"{k} ({controllers.label(c)})" for c, k in feas["per_controller"].items())
         + _apart(feas),
@@ -468,11 +468,12 @@ def _answer_ranking(r: dict) -> list[str]:
 def _answer_sensitivity(r: dict) -> list[str]:
     sob = r["sensitivity"]["sobol"]
     ix = sob["N"]["indices"]
-    parts = []
+    parts, widths = [], []
     for o in sob["outputs"]:
         if not ix.get(o) or not o.startswith(("margin", "rms")):
             continue
         top = sorted(ix[o].items(), key=lambda kv: -kv[1]["total"])[:3]
+        widths += [v["total_high"] - v["total_low"] for _, v in top]
         parts.append(f"{o}: " + ", ".join(f"{n} {v['total']:.2f} [{v['total_low']:.2f}, "
                                           f"{v['total_high']:.2f}]" for n, v in top))
     conv, ind = sob["convergence"], sob["independent_halves"]
@@ -490,10 +491,10 @@ def _answer_sensitivity(r: dict) -> list[str]:
         + "; ".join(parts) + f".  Convergence: {conv['intervals_overlapping']} of "
         f"{conv['intervals']} intervals at N and N/2 overlap (nested samples: expected); "
         f"between two independent halves of N/2 = {sob['first half']['n']} rows, "
-        f"{ind['intervals_overlapping']} of {ind['intervals']} overlap; the median interval "
-        f"width at N is {ind['median_interval_width_at_N']:.2f}"
-        + (", so the indices rank the settings only coarsely."
-           if ind["median_interval_width_at_N"] > 0.2 else "."),
+        f"{ind['intervals_overlapping']} of {ind['intervals']} overlap.  The median interval "
+        f"width at N is {ind['median_interval_width_at_N']:.2f} over all indices "
+        f"and {float(np.median(widths)):.2f} over the largest ones named here"
+        + (", so these rank the settings only coarsely." if np.median(widths) > 0.2 else "."),
     ]  # fmt: skip
 
 
