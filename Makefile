@@ -8,7 +8,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
 LOCK   := requirements.lock
 
-.PHONY: reproduce test bench clean-venv lock
+.PHONY: reproduce test bench calibration clean-venv lock
 
 define check_python
 	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else "wmr needs python3 >= 3.11")'
@@ -30,6 +30,12 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/wmr bench --out paper
+
+# The calibration study in full (~10^5 runs, about an hour and a half on two cores; its store
+# resumes).  `make reproduce` only re-renders the committed record.
+calibration: $(STAMP)
+	$(BIN)/python -m analysis.calibration --out paper --full
+	$(BIN)/wmr report --out paper
 
 clean-venv:
 	rm -rf $(VENV)

@@ -20,6 +20,7 @@ STUDIES: tuple[str, ...] = (
     "margins",
     "boundedness",
     "regimes",
+    "calibration",
     "performance",
     "reliability",
 )

@@ -1,0 +1,550 @@
+"""The calibration study (issue 15): its prior, discrepancy, methods, store and record.
+
+Oracles: the shipped scenarios (the prior's defaults must map back onto them bit for bit), the
+reproduction's own copy of the paper's tables, closed forms (the lemniscate's peak speed, the
+log ratios of a scaled table, Morris effects of a linear function, the Ishigami function's Sobol
+indices), scipy (``sobol_indices``, ``kendalltau``), brute force (Pareto fronts), and the
+committed record against the committed scenario files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+import math
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from analysis import _calibration_methods as methods
+from analysis import _calibration_prior as prior
+from wmr import scenario as scn
+from wmr.sim import simulate
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+# ---------------------------------------------------------------------------------------------
+# Step 1: the prior
+
+
+def test_paper_numbers_are_the_reproductions_and_their_rounding():
+    from analysis.reproduction import PAPER_RMSE
+
+    table = np.array([PAPER_RMSE[s][c][i] for s in prior.SCENARIOS for c in prior.CONTROLLERS
+                      for i in range(3)])  # fmt: skip
+    assert np.array_equal(prior.PAPER, table)
+    assert prior.NUMBER_NAMES[0] == "lemniscate/iapid-nn-dekf/x"
+    assert len(set(prior.NUMBER_NAMES)) == 36
+    # the printed digits set the rounding: "0.0380" keeps its trailing zero (4 decimals)
+    assert prior.half_unit("0.0380") == pytest.approx(5e-5, rel=1e-12)
+    assert prior.half_unit("0.078769") == pytest.approx(5e-7, rel=1e-12)
+    assert prior.ROUNDING.shape == (36,)
+
+
+def test_prior_is_written_down_with_provenance_and_shares_settings():
+    shared = [s for s in prior.PRIOR if s.group == "shared"]
+    assert len(shared) >= 8
+    for s in prior.PRIOR:
+        assert len(s.provenance) > 20, s.name
+        f = s.factor
+        if s.default is None:  # no saturation: beyond the range's top
+            continue
+        if f.levels is not None:
+            assert s.default in f.levels, s.name
+        else:
+            assert f.low <= s.default <= f.high, s.name
+            # the default's unit coordinate maps back onto it
+            assert f.value(s.default_u()) == pytest.approx(s.default, rel=1e-9), s.name
+    # what the paper gives is never varied
+    assert not {"mu", "p0", "q", "r", "initial_pose"} & set(prior.NAMES)
+    # dt divides every run length and the 15-20 s window
+    dts = prior.PRIOR[prior.NAMES.index("dt")].factor.levels
+    for dt, T in itertools.product(dts, prior.PRIOR[prior.NAMES.index("duration")].factor.levels):
+        for t in (T, 15.0, 20.0):
+            assert abs(t / dt - round(t / dt)) < 1e-9, (dt, t)
+    record = prior.prior_json()
+    assert set(record) == set(prior.NAMES)
+    assert all("provenance" in r and ("levels" in r or "range" in r) for r in record.values())
+
+
+@pytest.mark.parametrize("name", prior.SCENARIOS)
+def test_defaults_map_back_onto_the_shipped_scenarios_bit_for_bit(name):
+    v = prior.defaults()
+    shipped = scn.load(scn.builtin(name))
+    for sc, c, st in prior.cases(v, scenarios=(name,)):
+        assert st == shipped.settings(c)
+        a = simulate(sc, c, 3, settings=st)
+        b = simulate(shipped, c, 3)
+        assert np.array_equal(a.q, b.q), (name, c)
+
+
+def test_settings_are_shared_across_the_controllers():
+    v = {**prior.defaults(), "printed_rotation": True, "pid_scale_v": 0.5, "bsc_k1": 3.0,
+         "dann_hidden": 12, "iapid_hidden": 5, "feed_forward": True}  # fmt: skip
+    apid, iapid = prior.settings("adaptive-pid", v), prior.settings("iapid-nn-dekf", v)
+    bsc, dann = prior.settings("backstepping", v), prior.settings("adaptive-nn", v)
+    assert apid.gains == iapid.gains == (2.5, 2.5, 0.0, 10.0, 2.0, 0.0)
+    assert apid.feed_forward and iapid.feed_forward and iapid.hidden == 5
+    assert bsc.gains == dann.gains == (3.0, 10.0, 4.0) and dann.hidden == 12
+    assert all(s.printed_rotation for s in (apid, iapid, bsc, dann))
+    assert iapid.mu == (0.9,) * 6 and iapid.p0 == 1000.0 and iapid.q == 1e-5 and iapid.r == 1000.0
+
+
+def test_saturation_is_relative_to_the_reference_peak():
+    # Gerono: v_r = a W sqrt(cos^2 phi + cos^2 2 phi), largest at phi = 0: a W sqrt(2)
+    a, period, h = 1.5, 30.0, 2.0
+    lim = prior.limits("lemniscate", {"size": a, "period": period}, 0.01, 40.0, h)
+    assert lim["v_max"] == pytest.approx(h * a * 2 * math.pi / period * math.sqrt(2), rel=1e-12)
+    # sinusoid: v_r = sqrt(s^2 + (A w cos wt)^2), largest at t = 0
+    lim = prior.limits("sinusoid", {"speed": 0.5, "amplitude": 1.0, "omega": 0.5}, 0.01, 40.0, 1)
+    assert lim["v_max"] == pytest.approx(math.hypot(0.5, 0.5), rel=1e-12)
+
+
+def test_perturbation_readings():
+    assert prior.perturbation("velocity", math.log(2) / math.log(6)) == {
+        "disturbance": [{"start": 15.0, "stop": 20.0, "velocity": [0.1, 0.3]}]}
+    g = prior.perturbation("gain", 0.2)["plant"]["change"]
+    assert [c["at"] for c in g] == [15.0, 20.0] and g[0]["v_gain"] == pytest.approx(0.7)
+    assert g[1]["v_gain"] == g[1]["w_gain"] == 1.0
+    s = prior.perturbation("slip", 1.0)["plant"]["change"]
+    assert s[0]["slip"] == pytest.approx(0.5) and s[1]["slip"] == 0.0
+    with pytest.raises(ValueError):
+        prior.perturbation("wind", 0.5)
+
+
+def test_a_unit_gain_change_is_no_perturbation():
+    """The 'gain' reading at gain 1 is the unperturbed sinusoid (the non-ideal plant path is
+    refined to 1e-6 of the RMSE, DESIGN §3.3)."""
+    v = {**prior.defaults(), "perturbation": "gain", "perturbation_size": 0.5, "duration": 25.0}
+    (sc_p, c, st), = prior.cases(v, scenarios=("sinusoid-perturbed",), names=("backstepping",))
+    (sc_u, _, _), = prior.cases(v, scenarios=("sinusoid",), names=("backstepping",))
+    assert not sc_p.plant.ideal and sc_u.plant.ideal
+    a, b = simulate(sc_p, c, 0, settings=st), simulate(sc_u, c, 0, settings=st)
+    for axis in ("x", "y", "theta"):
+        assert a.rmse[axis] == pytest.approx(b.rmse[axis], rel=1e-6)
+
+
+# ---------------------------------------------------------------------------------------------
+# Step 2: the discrepancy and the tolerance
+
+
+def test_discrepancy_closed_forms():
+    d = prior.discrepancy(prior.PAPER)
+    assert d["rms_log_ratio"] == 0.0 and d["max_abs_log_ratio"] == 0.0
+    scale = np.where(np.arange(36) % 2 == 0, 2.0, 0.5)
+    d = prior.discrepancy(prior.PAPER * scale)
+    assert d["rms_log_ratio"] == pytest.approx(math.log(2), rel=1e-12)
+    one_nan = prior.PAPER.copy()
+    one_nan[5] = np.nan  # a diverged mean counts as DIVERGED_RMSE
+    lr = prior.log_ratios(one_nan)
+    assert lr[5] == pytest.approx(math.log(prior.DIVERGED_RMSE / prior.PAPER[5]))
+    assert np.all(lr[np.arange(36) != 5] == 0.0)
+    # batched: (..., 36)
+    assert prior.discrepancy(np.stack([prior.PAPER, 2 * prior.PAPER]))["rms_log_ratio"][1] == \
+        pytest.approx(math.log(2))
+
+
+def test_tolerance_is_rounding_plus_seed_spread_of_one_run():
+    tol = prior.tolerance(np.zeros(36), 2)
+    assert np.array_equal(tol, prior.ROUNDING)
+    sd = np.full(36, 0.01)
+    tol = prior.tolerance(sd, 4)  # by default at the joint level
+    assert tol == pytest.approx(prior.ROUNDING + prior.Z_JOINT * 0.01 * math.sqrt(1.25))
+    tol = prior.tolerance(sd, 4, prior.Z_SEED)
+    assert tol == pytest.approx(prior.ROUNDING + prior.Z_SEED * 0.01 * math.sqrt(1.25))
+
+
+# ---------------------------------------------------------------------------------------------
+# Step 3: the methods (no runs)
+
+
+def test_morris_design_moves_each_setting_once_by_delta():
+    u, order, up, delta = methods.morris_design(5, 7, levels=4, seed=3)
+    assert u.shape == (7, 6, 5) and delta == pytest.approx(2 / 3)
+    assert np.all((u >= 0) & (u <= 1 + 1e-12))
+    grid = np.arange(4) / 3
+    assert np.all(np.min(np.abs(u[..., None] - grid), axis=-1) < 1e-12)  # on the grid
+    for t in range(7):
+        steps = np.diff(u[t], axis=0)  # (k, k): row j moves setting order[t, j] only
+        for j, i in enumerate(order[t]):
+            expected = np.zeros(5)
+            expected[i] = delta if up[t, i] else -delta
+            np.testing.assert_allclose(steps[j], expected, atol=1e-12)
+
+
+def test_morris_effects_of_a_linear_function_are_its_coefficients():
+    a = np.array([3.0, -1.0, 0.0, 0.5])
+    u, order, up, delta = methods.morris_design(4, 6, seed=0)
+    y = (u @ a)[..., None]  # (r, k + 1, 1)
+    eff = methods.morris_effects(y, order, up, delta)
+    np.testing.assert_allclose(eff["mu"][:, 0], a, atol=1e-12)
+    np.testing.assert_allclose(eff["mu_star"][:, 0], np.abs(a), atol=1e-12)
+    np.testing.assert_allclose(eff["sigma"][:, 0], 0.0, atol=1e-12)
+    # an interaction u0 u1 shows as spread (sigma > 0) of both and none of the others
+    y2 = (u[..., 0] * u[..., 1])[..., None]
+    eff2 = methods.morris_effects(y2, order, up, delta)
+    assert eff2["sigma"][0, 0] > 0 and eff2["sigma"][1, 0] > 0
+    assert eff2["mu_star"][2, 0] == 0 and eff2["mu_star"][3, 0] == 0
+
+
+def _ishigami(x):  # x in [0, 1)^3 -> the Ishigami function on [-pi, pi)^3 (a = 7, b = 0.1)
+    z = -np.pi + 2 * np.pi * x
+    return np.sin(z[..., 0]) + 7 * np.sin(z[..., 1]) ** 2 + 0.1 * z[..., 2] ** 4 * np.sin(z[..., 0])
+
+
+def test_sobol_indices_match_scipy_and_the_ishigami_closed_form():
+    from scipy.stats import sobol_indices
+
+    A, B = methods.sobol_design(3, 12, seed=1)
+    AB = methods.ab_matrices(A, B)
+    assert np.array_equal(AB[1][:, [0, 2]], A[:, [0, 2]]) and np.array_equal(AB[1][:, 1], B[:, 1])
+    f_A, f_B = _ishigami(A)[None], _ishigami(B)[None]
+    f_AB = _ishigami(AB)[:, None, :]
+    ours = methods.sobol_indices(f_A, f_B, f_AB, n_resamples=200)
+    ref = sobol_indices(func={"f_A": f_A, "f_B": f_B, "f_AB": f_AB}, n=len(A))
+    np.testing.assert_allclose(ours["first"][0], ref.first_order, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(ours["total"][0], ref.total_order, rtol=1e-12, atol=1e-14)
+    # closed form (Ishigami & Homma 1990): V = a^2/8 + b pi^4/5 + b^2 pi^8/18 + 1/2
+    a, b = 7.0, 0.1
+    V = a**2 / 8 + b * np.pi**4 / 5 + b**2 * np.pi**8 / 18 + 0.5
+    V1 = 0.5 * (1 + b * np.pi**4 / 5) ** 2
+    V2 = a**2 / 8
+    V13 = b**2 * np.pi**8 * (1 / 18 - 1 / 50)
+    exact_first = np.array([V1, V2, 0.0]) / V
+    exact_total = np.array([V1 + V13, V2, V13]) / V
+    # 4096 rows: the estimators' error is a few 0.01 (their own intervals cover it)
+    np.testing.assert_allclose(ours["first"][0], exact_first, atol=0.04)
+    np.testing.assert_allclose(ours["total"][0], exact_total, atol=0.04)
+    assert np.all(ours["total_low"][0] <= exact_total + 0.01)
+    assert np.all(exact_total - 0.01 <= ours["total_high"][0])
+
+
+def test_kendall_tau_matches_scipy():
+    from scipy.stats import kendalltau
+
+    rng = np.random.default_rng(4)
+    ours = rng.random((50, 4))
+    paper = rng.random(4)
+    tau = methods.kendall_tau(ours, paper)
+    for i in range(50):
+        assert tau[i] == pytest.approx(kendalltau(ours[i], paper).statistic, abs=1e-12)
+
+
+def test_order_stats_at_the_paper_and_its_reverse():
+    same = np.broadcast_to(prior.PAPER, (10, 2, 36)).copy()
+    rec = methods.order_stats(same, prior.PAPER, prior.CONTROLLERS, prior.SCENARIOS, prior.AXES)
+    assert rec["all_nine"]["p"] == 1.0 and rec["kendall_tau"]["mean"] == pytest.approx(1.0)
+    assert rec["pairwise"]["iapid-nn-dekf < backstepping"]["p"] == 1.0
+    # reverse every order: 1/x reverses the ranking of positive numbers
+    rev = 1.0 / same
+    rec = methods.order_stats(rev, prior.PAPER, prior.CONTROLLERS, prior.SCENARIOS, prior.AXES)
+    assert rec["all_nine"]["p"] == 0.0 and rec["kendall_tau"]["mean"] == pytest.approx(-1.0)
+    assert rec["iapid_first_any"]["p"] == 0.0  # IAPID is last everywhere
+    pw = rec["pairwise"]["iapid-nn-dekf < adaptive-pid"]
+    assert pw["p"] == 0.0 and pw["paper"] == 1.0
+
+
+def test_order_stats_count_a_tie_as_no_order():
+    """All four equal (e.g. all diverged): no order holds and IAPID is not first."""
+    tied = np.full((4, 2, 36), 10.0)
+    rec = methods.order_stats(tied, prior.PAPER, prior.CONTROLLERS, prior.SCENARIOS, prior.AXES)
+    assert rec["all_nine"]["p"] == 0.0 and rec["iapid_first_any"]["p"] == 0.0
+    # IAPID tied with one other for the lowest: still not first
+    x = np.broadcast_to(prior.PAPER, (4, 2, 36)).copy().reshape(4, 2, 3, 4, 3)
+    x[:, :, :, 1, :] = x[:, :, :, 0, :]
+    rec = methods.order_stats(x.reshape(4, 2, 36), prior.PAPER, prior.CONTROLLERS,
+                              prior.SCENARIOS, prior.AXES)  # fmt: skip
+    assert rec["iapid_first_any"]["p"] == 0.0
+
+
+def test_joint_tolerance_level_is_sidak_over_36():
+    from scipy.stats import norm
+
+    per = 2 * norm.cdf(prior.Z_JOINT) - 1  # coverage of one band
+    assert per**36 == pytest.approx(prior.JOINT_LEVEL, rel=1e-12)
+    assert (2 * norm.cdf(prior.Z_SEED) - 1) ** 36 < 0.2  # per-number bands: joint ~19 %
+
+
+def test_a_diverged_seed_never_counts_as_matched():
+    """One seed at the paper's value and one diverged: the mean and sd are huge, the band wide
+    enough to hold the paper's number, yet it is not matched."""
+    from analysis import _calibration_stages as stages
+
+    arr = np.full((2, 12, 7), np.nan)  # seeds, cases, metrics + status
+    arr[0, :, :3] = prior.PAPER.reshape(12, 3)
+    arr[0, :, 3:] = 1.0
+    arr[1, 0, :3] = np.nan  # seed 1, case 0 diverged; the rest at the paper's values
+    arr[1, 1:, :3] = prior.PAPER.reshape(12, 3)[1:]
+    arr[1, 1:, 3:] = 1.0
+    nums, div = stages.numbers(arr)[None], stages.diverged(arr)[None]
+    feas = stages._feasibility(nums, div)
+    assert np.all(np.abs(feas["mean"][0, :3] - prior.PAPER[:3]) <= feas["tol"][0, :3])
+    assert not feas["within"][0, :3].any() and feas["within"][0, 3:].all()
+    assert not feas["within_per_number"][0, :3].any()
+
+
+def test_bootstrap_interval_is_seeded_and_covers_the_mean():
+    x = np.random.default_rng(0).normal(1.0, 0.1, 400)
+    lo, hi = methods.bootstrap_mean(x, seed=3)
+    assert (lo, hi) == methods.bootstrap_mean(x, seed=3)
+    se = x.std(ddof=1) / math.sqrt(len(x))
+    assert lo < x.mean() < hi
+    assert hi - lo == pytest.approx(2 * 1.96 * se, rel=0.15)  # the normal closed form
+
+
+# ---------------------------------------------------------------------------------------------
+# The store: resumable, deterministic
+
+
+def _small_tasks(n=3):
+    from analysis import _calibration_stages as stages
+
+    space = stages.Space.of(stages.QUICK, ("bsc_k1", "noise_std"))
+    return [dataclasses.replace(t, cases=tuple(c for c in t.cases if c[1] == "backstepping"))
+            for t in (space.task(u, (0, 1)) for u in np.linspace(0.1, 0.9, 2 * n).reshape(n, 2))]
+
+
+def test_store_resumes_and_refuses_another_version(tmp_path):
+    from analysis._calibration_store import Evaluator, read_store, run_task
+
+    tasks = _small_tasks()
+    with Evaluator(tmp_path, "abc", workers=1, progress=False) as ev:
+        first = ev.evaluate(tasks[:2])
+        assert ev.runs_this_time == 2 * 2 * 3
+    stored = read_store(tmp_path)
+    assert set(stored) == {t.key for t in tasks[:2]}
+    with Evaluator(tmp_path, "abc", workers=1, progress=False) as ev:
+        again = ev.evaluate(tasks)  # two from the store, one run now
+        assert ev.runs_this_time == 2 * 3 and ev.loaded == 2
+    for a, b in zip(first, again[:2], strict=True):
+        assert np.array_equal(a, b, equal_nan=True)
+    # the store's rows are the runs themselves
+    key, direct = run_task(tasks[2])
+    assert np.array_equal(again[2], direct, equal_nan=True)
+    assert np.all(direct[..., -1] == 0) and direct.shape == (2, 3, 7)
+    with pytest.raises(ValueError, match="another version"):
+        Evaluator(tmp_path, "xyz", workers=1)
+
+
+def test_an_error_is_a_row_not_a_crash():
+    from analysis._calibration_store import ERROR, Task, run_task
+
+    sc = scn.load(scn.builtin("sinusoid"))
+    bad = Task("k", ((sc, "backstepping", "not settings"),), (0,))
+    _, arr = run_task(bad)
+    assert arr[0, 0, -1] == ERROR and np.all(np.isnan(arr[0, 0, :-1]))
+
+
+# ---------------------------------------------------------------------------------------------
+# Fitted scenarios as TOML, fair tuning's pieces
+
+
+def test_toml_text_round_trips():
+    from analysis.calibration import toml_text
+
+    doc = {"name": "x", "dt": 0.01, "flag": True, "pose": [0.0, -0.7, 1.5],
+           "reference": {"kind": "lemniscate", "size": 2.0},
+           "plant": {"change": [{"at": 15.0, "slip": 0.1}, {"at": 20.0, "slip": 0.0}]},
+           "controllers": {"adaptive-pid": {"gains": [1.0, 2.0], "gradient": "exact"}}}
+    assert tomllib.loads(toml_text(doc, "a header\nof two lines")) == doc
+
+
+def test_fit_scenarios_are_the_settings(tmp_path):
+    from analysis.calibration import fit_scenarios
+
+    v = {**prior.defaults(), "perturbation": "slip", "perturbation_size": 0.3, "bsc_k2": 20.0,
+         "pid_scale_w": 0.4, "saturation": 2.0, "iapid_hidden": 15}  # fmt: skip
+    files = fit_scenarios(v, 0.5, tmp_path)
+    assert files == [f"{n}.toml" for n in prior.SCENARIOS]
+    for name in prior.SCENARIOS:
+        sc = scn.load(tmp_path / f"{name}.toml")
+        (ref, *_), = [c for c in prior.cases(v, scenarios=(name,), names=("backstepping",))]
+        assert sc.name == f"paper-fit-{name}"
+        assert dataclasses.replace(sc, name=ref.name, source=ref.source, controllers={}) == \
+            dataclasses.replace(ref, controllers={})
+        for c in prior.CONTROLLERS:
+            assert sc.settings(c) == prior.settings(c, v)
+        assert "A FIT, not the suite's defaults" in (tmp_path / f"{name}.toml").read_text()
+
+
+def test_pareto_front_is_the_non_dominated_set():
+    from analysis._calibration_fair import pareto_front
+
+    rng = np.random.default_rng(2)
+    cost, effort = rng.random(60), rng.random(60)
+    front = set(pareto_front(cost, effort).tolist())
+    brute = {i for i in range(60) if not any(cost[j] <= cost[i] and effort[j] <= effort[i]
+                                             and (cost[j], effort[j]) != (cost[i], effort[i])
+                                             for j in range(60))}  # fmt: skip
+    assert front == brute
+
+
+def test_fair_tuning_gains_span_their_ranges():
+    from analysis._calibration_fair import FREE_GAINS, gains_at
+
+    for c, spec in FREE_GAINS.items():
+        lo, hi = gains_at(c, [0.0] * len(spec)), gains_at(c, [1.0] * len(spec))
+        assert lo == pytest.approx([g[1] for g in spec])
+        assert hi == pytest.approx([g[2] for g in spec])
+        mid = gains_at(c, [0.5] * len(spec))
+        for (_, a, b, log), m in zip(spec, mid, strict=True):
+            assert m == pytest.approx(math.sqrt(a * b) if log else (a + b) / 2)
+        # each gain set is valid for the controller
+        from wmr import controllers
+
+        controllers.get(c).Settings(gains=mid)
+
+
+# ---------------------------------------------------------------------------------------------
+# The study: a quick run (every stage, a few points, short runs) and the committed record
+
+
+REQUIRED = ("prior", "points", "tolerance", "feasible", "best_fit", "p_paper_order",
+            "sensitivity", "fair_tuning")  # fmt: skip
+
+
+def _points_agree(record: dict, out: Path) -> None:
+    """The points file beside a record is the one it summarises."""
+    from analysis.calibration import read_points
+
+    pts = read_points(out, record)
+    n = record["points"]["n"]
+    assert len(pts["point"]) == n and pts["point"] == [float(i) for i in range(n)]
+    assert list(pts) == record["points"]["columns"]
+    hist = np.bincount(np.array(pts["n_within"], dtype=int), minlength=37).tolist()
+    assert hist == record["points"]["n_within_histogram"]
+    assert [i for i, k in enumerate(pts["n_within"]) if k == 36] == record["feasible"]["points"]
+    assert min(pts["rms_log_ratio"]) == pytest.approx(record["points"]["min_rms_log_ratio"],
+                                                      rel=1e-6)  # fmt: skip
+    best = record["feasible"]["best_point"]
+    assert pts["rms_log_ratio"][best["index"]] == pytest.approx(best["rms_log_ratio"], rel=1e-6)
+    for name in record["points"]["varied"]:
+        assert len(pts[name]) == n
+
+
+def _rerun_points(record: dict, out: Path, indices) -> None:
+    """Rebuild design points from the record alone (the design's seed, the settings varied and
+    those fixed, the seeds) and run them here: their settings, rms log ratio and count of
+    numbers within tolerance are the points file's (the record is what its runs give)."""
+    from analysis import _calibration_methods as methods
+    from analysis import _calibration_stages as stages
+    from analysis._calibration_store import run_task
+    from analysis.calibration import read_points
+
+    level = stages.FULL if record["level"] == "full" else stages.QUICK
+    varied = record["points"]["varied"]
+    space = stages.Space.of(level, varied, record["screening"]["fixed_at"])
+    a, b = methods.sobol_design(len(varied), level.design_m, seed=stages.DESIGN_SEED)
+    u = np.vstack([a, b])
+    assert len(u) == record["points"]["n"]
+    pts = read_points(out, record)
+    cv = np.array(list(record["tolerance"]["pooled_cv"].values()))
+    for i in indices:
+        for name, value in space.values(u[i]).items():
+            if name in varied and not isinstance(value, (str, bool)):
+                assert pts[name][i] == pytest.approx(float(value), rel=1e-6), (i, name)
+        _, arr = run_task(space.task(u[i], record["seeds"]))
+        nums, div = stages.numbers(arr), stages.diverged(arr).any(axis=0)
+        mean = nums.mean(axis=0)
+        sd = nums.std(axis=0, ddof=1) if len(nums) > 1 else np.zeros(36)
+        within = stages._within(mean, np.maximum(sd, cv * mean), div, len(nums), prior.Z_JOINT)
+        rms = float(prior.discrepancy(mean)["rms_log_ratio"])
+        assert pts["rms_log_ratio"][i] == pytest.approx(rms, rel=1e-6), i
+        assert pts["n_within"][i] == int(within.sum()), i
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory):
+    from analysis import calibration
+
+    out = tmp_path_factory.mktemp("calibration")
+    return out, calibration.run(out, quick=True, workers=1, progress=False)
+
+
+def test_quick_study_is_whole_and_checks(quick):
+    from analysis import calibration
+
+    out, record = quick
+    calibration.check(record)
+    assert set(REQUIRED) <= set(record)
+    for name in record["figures"]:
+        assert (out / "figures" / name).stat().st_size > 10_000
+    assert (out / "tables" / "calibration.md").exists()
+    assert json.loads((out / "results" / "calibration.json").read_text()) == record
+    _points_agree(record, out)
+    _rerun_points(record, out, [0, record["feasible"]["best_point"]["index"]])
+    # the fit's settings are the scenario files it wrote
+    for f in record["best_fit"]["scenario_files"]:
+        sc = scn.load(out / f)
+        assert sc.settings("backstepping").gains == tuple(
+            record["best_fit"]["settings"][k] for k in ("bsc_k1", "bsc_k2", "bsc_k3"))
+    # every controller had the same tuning budget
+    nfev = {t["nfev"] for t in record["fair_tuning"]["controllers"].values()}
+    assert nfev == {record["fair_tuning"]["budget"]["evaluations"]}
+    text = calibration.render(record)
+    for q in ("Does any plausible setting reproduce", "How close is the best fit",
+              "How likely is the paper's ranking", "Which unstated settings decide it",
+              "Who wins under fair tuning"):  # fmt: skip
+        assert q in text
+    assert "QUICK" in text
+
+
+def test_check_catches_an_inconsistent_record(quick):
+    import copy
+
+    from analysis import calibration
+
+    _, record = quick
+    bad = copy.deepcopy(record)
+    bad["best_fit"]["rms_log_ratio"] *= 0.5  # a summary that is not its residuals'
+    with pytest.raises(AssertionError):
+        calibration.check(bad)
+    bad = copy.deepcopy(record)
+    first = next(iter(bad["fair_tuning"]["controllers"].values()))
+    first["nfev"] += 1  # an unequal budget
+    with pytest.raises(AssertionError):
+        calibration.check(bad)
+
+
+COMMITTED = ROOT / "paper" / "results" / "calibration.json"
+
+
+@pytest.mark.skipif(not COMMITTED.exists(), reason="no committed calibration record")
+def test_committed_record_checks_and_its_files_agree():
+    from analysis import calibration
+
+    record = json.loads(COMMITTED.read_text())
+    assert record["level"] == "full"
+    calibration.check(record)
+    _points_agree(record, ROOT / "paper")
+    assert record["points"]["n"] >= 4096
+
+
+@pytest.mark.skipif(not COMMITTED.exists(), reason="no committed calibration record")
+def test_committed_record_is_what_its_runs_give():
+    """Three design points rebuilt from the committed record and run again (2 seeds x 12 runs
+    each) give the committed points file's values: the best point, the first and the last."""
+    record = json.loads(COMMITTED.read_text())
+    n = record["points"]["n"]
+    _rerun_points(record, ROOT / "paper", [record["feasible"]["best_point"]["index"], 0, n - 1])
+
+
+@pytest.mark.skipif(not COMMITTED.exists(), reason="no committed calibration record")
+def test_committed_fit_scenarios_reproduce_the_record():
+    """The shipped paper-fit scenarios are the fitted settings: running them gives the record's
+    per-seed numbers exactly (seeds 0 and 1)."""
+    record = json.loads(COMMITTED.read_text())
+    fit = record["best_fit"]
+    for i_seed, seed in enumerate(fit["seeds"][:2]):
+        ours = []
+        for f in fit["scenario_files"]:
+            sc = scn.load(ROOT / f)
+            assert sc.name.startswith("paper-fit-")
+            for c in prior.CONTROLLERS:
+                r = simulate(sc, c, seed, keep_trajectory=False)
+                ours += [r.rmse[a] if not r.diverged else prior.DIVERGED_RMSE for a in prior.AXES]
+        assert ours == fit["per_seed"][i_seed], seed
