@@ -31,7 +31,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/wmr bench --out paper
 
-# The calibration study in full (~10^5 runs, about an hour and a half on two cores; its store
+# The calibration study in full (~1.8e5 runs, 43 min on a 2-core machine; its store
 # resumes).  `make reproduce` only re-renders the committed record.
 calibration: $(STAMP)
 	$(BIN)/python -m analysis.calibration --out paper --full

@@ -23,7 +23,7 @@ Nothing is tuned to make a controller win; the fit is a separate, labelled resul
 
 Commands: ``wmr analyze calibration`` (and ``wmr reproduce``) re-render the committed record
 (``paper/results/calibration.json`` and its points file); without one they compute it.
-``python -m analysis.calibration --full [--workers N]`` recomputes it: about an hour and a half
+``python -m analysis.calibration --full [--workers N]`` recomputes it: about 45 minutes
 of runs on two cores, in a resumable store under ``$WMR_STORES`` (default
 ``~/.cache/wmr/stores``) named by the sources.
 """
@@ -293,7 +293,7 @@ def _committed(out: Path) -> tuple[Path, dict] | tuple[None, None]:
 def run(out, *, quick: bool = False, workers: int | None = None, full: bool = False,
         progress: bool | None = None) -> dict:  # fmt: skip
     """The study into ``out``: ``quick`` a few points on short runs (tests); ``full``
-    recomputes everything (about an hour and a half on two cores; the store resumes);
+    recomputes everything (about 45 minutes on two cores; the store resumes);
     otherwise the full record in ``out`` or, failing that, the repository's committed one is
     re-rendered (figures, table; ``wmr reproduce`` stays short), and only without any record is
     the study computed."""

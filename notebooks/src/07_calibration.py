@@ -6,8 +6,8 @@
 # range with where it comes from), screens them (Morris), runs a scrambled Sobol design of
 # 4096 points x 2 seeds through the engine, fits the 36 numbers of Tables 1–3 by differential
 # evolution, measures how robust the paper's ranking is over the prior (Sobol indices, P(order))
-# and tunes every controller with the same budget. The full study takes about an hour and a
-# half on two cores (`python -m analysis.calibration --full`); this notebook reads its committed
+# and tunes every controller with the same budget. The full study takes about 45 minutes on
+# two cores (`python -m analysis.calibration --full`); this notebook reads its committed
 # record and reruns one small thing: the fitted scenarios, seed 0.
 # %%
 import json
