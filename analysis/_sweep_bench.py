@@ -97,7 +97,8 @@ def throughput(controllers=("iapid-nn-dekf", "pid"), workers: int = 2, quick: bo
     """Runs/s of the serial engine, a LocalCluster of ``workers`` and a loopback scheduler with
     ``workers`` worker processes, for each controller, ``repeats`` times interleaved (the best
     rate of each engine is kept); rows checked equal across engines."""
-    runs = {"iapid-nn-dekf": 60 if quick else 400, "pid": 600 if quick else 4000}
+    # each parallel sweep runs ~10 s (a 4-5 s one measured 0.82-1.0 from run to run: noise)
+    runs = {"iapid-nn-dekf": 60 if quick else 600, "pid": 600 if quick else 10000}
     out = {"workers": workers, "repeats": repeats, "controllers": {}}
     with tempfile.TemporaryDirectory(prefix="wmr-sweep-bench-") as tmp:
         tmp = Path(tmp)
@@ -184,7 +185,8 @@ def scaling_paragraph(rec: dict) -> str:
                  f"({large['runs_per_s']:.0f} runs/s).")
     text += (
         f"  At these rates 10⁶ iapid-nn-dekf runs take {1e6 / rate / 3600:.1f} h on this machine "
-        f"and 10⁷ take {1e7 / rate / 3600:.0f} h; on {cores} cores ({cores // w}x), "
+        f"and 10⁷ take {1e7 / rate / 3600:.0f} h; on {cores} cores ({cores // w}x, if every core "
+        f"keeps this rate: not measured here), "
         f"{1e6 / rate / (cores / w) / 60:.1f} min and {1e7 / rate / (cores / w) / 60:.0f} min; "
         f"the PID is {pid['serial_runs_per_s'] / iapid['serial_runs_per_s']:.0f}x cheaper.  With "
         f"{batch:g} s batches a sweep of 10⁶ iapid-nn-dekf runs is {tasks_1e6:,.0f} tasks and "

@@ -120,7 +120,7 @@ def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
     rec.update(_monte_carlo(lem, workers, quick))
     rss["after_monte_carlo"] = _bench.rss_mb()
     rec["peak_rss_mb_before_python_control"] = rss["after_monte_carlo"]
-    rec["sweep"] = _sweep_bench.throughput(workers=2, quick=quick, repeats=1 if quick else 2)
+    rec["sweep"] = _sweep_bench.throughput(workers=2, quick=quick, repeats=1 if quick else 3)
     if not quick:
         rec["sweep"]["large_sweep"] = _sweep_bench.large_sweep(TARGETS["large_sweep_runs_min"])
     pc, overhead = _python_control(lem, 200 if quick else 500, 3 if quick else 5)

@@ -127,7 +127,9 @@ def _frame(stores: list[Path], d: dict):
     """Both stores' rows as one DataFrame with the cell columns."""
     import pandas as pd
 
-    rows = pd.concat([sweep.read_rows(s).to_pandas() for s in stores], ignore_index=True)
+    # in job order (a store's shards follow completion order): the cells in the design's order
+    rows = pd.concat([sweep.read_rows(s).to_pandas().sort_values("job_id", kind="stable")
+                      for s in stores], ignore_index=True)  # fmt: skip
     parts = rows.scenario.str.split("@", expand=True)
     rows["trajectory"], rows["mechanism"] = parts[0], parts[1]
     by_rate = {(m, s): label for label, m, s in RATES}
@@ -263,7 +265,9 @@ def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
         "alpha": ALPHA, "quick": quick, "cells": cs, "verdict": verdict(cs),
         "cost": {"runs": int(sum(m["jobs"] for m in manifests)),
                  "runs_this_time": int(sum(m["runs_this_time"] for m in manifests)),
-                 "seconds": seconds, "engine": manifests[0]["engine"],
+                 "seconds": seconds,
+                 "run_seconds_total": float(sum(m["run_seconds_total"] for m in manifests)),
+                 "engine": manifests[0]["engine"],
                  "workers": manifests[0]["workers"]},
     }  # fmt: skip
     record["figures"] = [common.save_figure(out, f"{STEM}_map.png", _figure(record))]
@@ -438,8 +442,9 @@ def notes(record: dict) -> list[str]:
             f"{1e3 * t['ci_high']:.2f}] mm)"
             for c, t in ((c, c["tests"][ia]) for c in best)) + ".")  # fmt: skip
     c = record["cost"]
-    out.append(f"Cost: {c['runs']:,} runs ({c['runs_this_time']:,} this time) in "
-               f"{c['seconds']:.0f} s on {c['engine']}.")
+    out.append(f"Cost: {c['runs']:,} runs in {c['run_seconds_total']:.0f} s of running over "
+               f"the invocations that filled the stores ({c['runs_this_time']:,} runs in the "
+               f"last, {c['seconds']:.0f} s in all) on {c['engine']}.")
     return out
 
 

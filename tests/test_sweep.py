@@ -127,12 +127,17 @@ def test_resume_skips_finished_jobs_and_gives_the_uninterrupted_rows(tmp_path):
     first = sweep.job_rows(spec, range(0, 24, 3))  # a previous, interrupted sweep's shard
     (part / "rows").mkdir(parents=True)
     sweep.write_shard(part, spec, first)
-    (part / "manifest.json").write_text(json.dumps({"spec_digest": spec.digest}))
+    (part / "manifest.json").write_text(json.dumps({"spec_digest": spec.digest,
+                                                    "run_seconds_total": 1.5}))  # fmt: skip
     manifest = sweep.run_sweep(spec, part, workers=1, progress=False)
     assert manifest["runs_this_time"] == spec.n_jobs - 8 and manifest["complete"]
     assert _rows(part).equals(_rows(full))  # no job twice, none lost, the same values
+    # the running time of every finished invocation adds up
+    assert manifest["run_seconds_total"] == pytest.approx(1.5 + manifest["run_seconds"], abs=2e-3)
     again = sweep.run_sweep(spec, part, workers=1, progress=False)
     assert again["runs_this_time"] == 0 and len(_rows(part)) == spec.n_jobs
+    assert again["run_seconds_total"] == pytest.approx(
+        manifest["run_seconds_total"] + again["run_seconds"], abs=2e-3)
 
 
 def test_the_store(tmp_path):

@@ -570,8 +570,10 @@ def run_sweep(spec: Spec, out: str | Path, *, workers: int | None = None,
         atomic_write_text(out / "spec.toml", Path(spec.source).read_text(encoding="utf-8"))
     done = finished_jobs(out)
     todo = [j for j in range(spec.n_jobs) if j not in done]
+    before = out / "manifest.json"
+    total = json.loads(before.read_text()).get("run_seconds_total", 0.0) if before.exists() else 0.0
     manifest = _manifest(spec, done, started=time.time())
-    write_json(out / "manifest.json", manifest)
+    write_json(out / "manifest.json", {**manifest, "run_seconds_total": total})
     pairs = {(c, sc.plant.ideal): (sc, c) for point in spec.runs for sc in point
              for c in spec.controllers}  # fmt: skip
     with study.engine(workers, scheduler) as eng:
@@ -597,7 +599,7 @@ def run_sweep(spec: Spec, out: str | Path, *, workers: int | None = None,
     manifest.update(_manifest(spec, done, started=manifest["started"]),
                     engine=manifest["engine"], workers=manifest["workers"],
                     seconds=round(time.perf_counter() - t0, 3), run_seconds=round(run_s, 3),
-                    runs_this_time=len(todo),
+                    run_seconds_total=round(total + run_s, 3), runs_this_time=len(todo),
                     runs_per_s=round(len(todo) / run_s, 3) if run_s > 0 and todo else None,
                     batch_seconds=batch_seconds, flush_seconds=flush_seconds,
                     batches=len(groups), finished=time.time())  # fmt: skip
