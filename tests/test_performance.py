@@ -400,7 +400,9 @@ def test_quick_run_writes_the_study_and_passes_check(tmp_path):
     assert (tmp_path / "tables" / "performance.md").read_text() == perf.table(stored)
     assert (tmp_path / "figures" / "performance_vs_weights.png").stat().st_size > 0
     section = perf.render(stored)
-    assert section.startswith("## Performance\n") and perf.table(stored).rstrip() in section
+    assert section.startswith("## Performance\n") and perf.tables(stored).rstrip() in section
+    note = perf.notes(stored)[0]
+    assert section.count(note) == 1 and "\n# " not in section  # the notes once, no stray H1
     figure = "performance_vs_weights.png"
     assert section.rstrip().endswith(f"![{figure}](figures/{figure})")
     # the non-timing values
