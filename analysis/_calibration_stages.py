@@ -192,7 +192,8 @@ def _feasibility(nums: np.ndarray, div: np.ndarray) -> dict:
     n_p, n_s, _ = nums.shape
     mean = nums.mean(axis=1)
     sd = nums.std(axis=1, ddof=1) if n_s > 1 else np.zeros_like(mean)
-    ok = ~div.any(axis=1)  # the pooled spread from points where the number never diverged
+    any_div = div.any(axis=1)
+    ok = ~any_div  # the pooled spread from points where the number never diverged
     if n_s > 1 and ok.any():
         with np.errstate(all="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # a number diverged everywhere
@@ -200,7 +201,6 @@ def _feasibility(nums: np.ndarray, div: np.ndarray) -> dict:
     else:
         cv = np.zeros(36)
     sd_eff = np.maximum(sd, cv * mean)
-    any_div = div.any(axis=1)
     return {"mean": mean, "sd": sd_eff, "tol": prior.tolerance(sd_eff, n_s),
             "within": _within(mean, sd_eff, any_div, n_s, prior.Z_JOINT),
             "within_per_number": _within(mean, sd_eff, any_div, n_s, prior.Z_SEED),

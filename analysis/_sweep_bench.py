@@ -61,13 +61,16 @@ def task_cost(address: str, tasks: int = 500) -> float:
 
 
 def _process_cpu(procs) -> float:
+    """User + system CPU seconds of ``procs`` (psutil processes; one gone meanwhile adds 0)."""
+    import psutil
+
     total = 0.0
     for p in procs:
         try:
             t = p.cpu_times()
-            total += t.user + t.system
-        except Exception:  # noqa: BLE001 - a process gone meanwhile adds nothing
-            pass
+        except psutil.Error:
+            continue
+        total += t.user + t.system
     return total
 
 

@@ -359,19 +359,12 @@ def _where_each_arm_wins(cs: list[dict]) -> str:
             m = {b: x["tail_mean"] for b, x in c["arms"].items() if x["tail_mean"] is not None}
             others = [x for b, x in m.items() if b != a]  # an arm that always diverged: none
             if a in m and others:
-                leads.append((min(others) - m[a]) / min(others))
-
-        def where(key, won=won):
-            counts = {}
-            for c in won:
-                counts[c[key]] = counts.get(c[key], 0) + 1
-            return ", ".join(f"{k} {n}" for k, n in sorted(counts.items(), key=lambda kv: -kv[1]))
-
+                leads.append(1.0 - m[a] / min(others))
         lead = (f", ahead of the next arm by a median {100 * float(np.median(leads)):.1f} % of "
                 f"its mean (range {100 * min(leads):.1f}-{100 * max(leads):.1f} %)"
                 if leads else "")  # fmt: skip
-        parts.append(f"{controllers.label(a)} in {len(won)} cells (mechanism: {where('mechanism')};"
-                     f" trajectory: {where('trajectory')}){lead}")
+        parts.append(f"{controllers.label(a)} in {len(won)} cells (mechanism: "
+                     f"{_by(won, 'mechanism')}; trajectory: {_by(won, 'trajectory')}){lead}")
     return "Where each arm has the lowest mean: " + "; ".join(parts) + "."
 
 

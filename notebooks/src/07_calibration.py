@@ -6,9 +6,9 @@
 # range with where it comes from), screens them (Morris), runs a scrambled Sobol design of
 # 4096 points x 2 seeds through the engine, fits the 36 numbers of Tables 1–3 by differential
 # evolution, measures how robust the paper's ranking is over the prior (Sobol indices, P(order))
-# and tunes every controller with the same budget. The full study takes about 45 minutes on
-# two cores (`python -m analysis.calibration --full`); this notebook reads its committed
-# record and reruns one small thing: the fitted scenarios, seed 0.
+# and tunes every controller with the same budget. The full study has its own command
+# (`python -m analysis.calibration --full`; its cost is printed below); this notebook reads its
+# committed record and reruns one small thing: the fitted scenarios, seed 0.
 # %%
 import json
 from pathlib import Path
@@ -23,6 +23,8 @@ print("level:", record["level"], "| design points:", record["points"]["n"],
       "| seeds:", record["seeds"])
 print("settings in the prior:", len(record["prior"]), "| shared by all four controllers:",
       sum(p["group"] == "shared" for p in record["prior"].values()))
+cost = record["cost"]
+print(f"cost: {cost['runs_total']:,} runs, {cost['seconds_running_total'] / 60:.0f} min of running")
 # %% [md]
 # ## Does any setting reproduce the tables?
 #
