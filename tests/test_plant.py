@@ -24,17 +24,21 @@ EXACT_RTOL = 1e-12
 
 
 def drive(spec: scn.Plant, commands, q0=(0.0, 0.0, 0.0), dt=DT):
-    """Drive the plant ``spec`` with the command sequence through ``wmr.loop.actuate`` (no
-    disturbance, no pose filter); the poses ``q_0 .. q_n`` and the final actual velocities."""
+    """Drive the plant ``spec`` with the command sequence through the loop's plant half
+    (``wmr.loop.plant_step``: delay, no disturbance, no pose filter); the poses ``q_0 .. q_n``
+    and the final actual velocities."""
     sc = scn.from_dict({"name": "p", "duration": len(commands) * dt, "dt": dt,
                         "initial_pose": list(q0), "reference": {"kind": "circle", "radius": 1.0,
                                                                 "period": 10.0}})  # fmt: skip
     run = loop.prepare(dataclasses.replace(sc, plant=spec), "backstepping", 0)
+    half = loop.plant_step(run)
+    arrays = (run.plant_table, run.plant_at, run.plant_ints, run.plant_vel, run.plant_buffer)
     q, u, ua = run.q, np.zeros(2), np.zeros(2)
     poses = [q.copy()]
     for k, c in enumerate(commands):
         u[:] = c
-        loop.actuate(run, k, u, ua, q, run.q_hat, run.Pq)
+        half(k, dt, run.integrator, u, ua, q, run.q_hat, run.Pq, run.Qp, False, run.disturbance,
+             arrays, False, None)  # fmt: skip
         poses.append(q.copy())
     return np.array(poses), run.plant_vel
 

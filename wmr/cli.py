@@ -1,4 +1,5 @@
-"""Command line: ``wmr run | reproduce | report | analyze | bench | sweep | settings`` (§3.2, §3.5).
+"""Command line: ``wmr run | reproduce | report | analyze | bench | sweep | settings | cache``
+(§3.2, §3.5, §3.8).
 
 Exit codes: 0 success; 2 bad input (one line ``error: ...`` on stderr naming the file, key and
 value; nothing written); 1 an unexpected failure.  A diverged run is a result, not an error.
@@ -66,6 +67,19 @@ def _controllers(requested: list[str] | None) -> list[str]:
     return list(dict.fromkeys(requested))
 
 
+def _plugins(args, entry_points: bool = True) -> None:
+    """Load the ``--plugin`` modules (and, unless told otherwise, the installed entry points of
+    ``wmr.plugins.GROUP``) before anything reads the registry; a bad plugin is exit 2."""
+    from wmr import plugins
+
+    try:
+        if entry_points:
+            plugins.load_entry_points()
+        plugins.load_all(getattr(args, "plugin", None) or ())
+    except plugins.PluginError as err:
+        raise UsageError(str(err)) from None
+
+
 def _format_table(rows: list[dict]) -> str:
     head = f"{'controller':<16}{'rmse x':>10}{'rmse y':>10}{'rmse θ':>10}{'position':>10}  status"
     lines = [head, "-" * len(head)]
@@ -91,6 +105,7 @@ def cmd_run(args) -> int:
     from wmr.io import save_figure, write_json
     from wmr.plots import tracking_figure
 
+    _plugins(args)
     try:
         sc = scn.load(args.scenario)
     except scn.ScenarioError as err:
@@ -205,6 +220,7 @@ def _check_out(out: Path) -> None:
 
 
 def cmd_reproduce(args) -> int:
+    _plugins(args, entry_points=False)  # the built-in controllers only, unless --plugin
     out = Path(args.out)
     _check_out(out)
     registry = _studies()
@@ -241,6 +257,7 @@ def cmd_report(args) -> int:
 
 
 def cmd_analyze(args) -> int:
+    _plugins(args)
     out = Path(args.out)
     _check_out(out)
     registry = _studies()
@@ -274,6 +291,7 @@ def cmd_bench(args) -> int:
 def cmd_sweep(args) -> int:
     from wmr import sweep
 
+    _plugins(args)
     try:
         spec = sweep.load_spec(args.spec)
         sweep.check_out(Path(args.out), spec)
@@ -305,6 +323,22 @@ def cmd_settings(args) -> int:
     return 0
 
 
+def _plugin_option(parser) -> None:
+    parser.add_argument("--plugin", action="append", metavar="PATH_OR_MODULE", default=[],
+                        help="load the controllers of a plugin (a .py file or a module with "
+                             "CONTROLLERS; repeatable; DESIGN §3.8)")  # fmt: skip
+
+
+def cmd_cache(args) -> int:
+    from wmr import _jit
+
+    print(f"wmr's compiled kernels: {_jit.CACHE_DIR}")
+    if args.prune:
+        removed = _jit.prune_old_caches()
+        print(f"removed {len(removed)} folder(s) of earlier versions of the source")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="wmr",
                      description="Adaptive trajectory tracking of wheeled mobile robots.")
@@ -315,6 +349,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="controller name(s), or 'all' (default: all)")  # fmt: skip
     run.add_argument("--seed", type=_nonnegative_int, help="seed (default: the scenario's)")
     run.add_argument("--out", help="output folder (default: wmr-runs/<scenario name>)")
+    _plugin_option(run)
     run.set_defaults(func=cmd_run)
 
     rep = sub.add_parser("reproduce", help="the paper's scenarios x controllers x seeds, the "
@@ -325,6 +360,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="worker processes (default: all cores)")  # fmt: skip
     rep.add_argument("--skip-analyses", action="store_true", help="only the reproduction runs")
     rep.add_argument("--skip-bench", action="store_true", help="do not run the benchmark")
+    _plugin_option(rep)
     rep.set_defaults(func=cmd_reproduce)
 
     report = sub.add_parser("report", help="rebuild report.md from the stored results")
@@ -337,6 +373,7 @@ def build_parser() -> argparse.ArgumentParser:
     ana.add_argument("--quick", action="store_true", help="a short version of the study")
     ana.add_argument("--workers", type=_positive_int, default=None,
                      help="worker processes (default: all cores)")  # fmt: skip
+    _plugin_option(ana)
     ana.set_defaults(func=cmd_analyze)
 
     sw = sub.add_parser("sweep", help="run (or resume) a sweep spec into a Parquet store")
@@ -350,6 +387,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="work per task, in seconds (default 2)")
     sw.add_argument("--flush-seconds", type=_positive_float, default=30.0,
                     help="write completed rows at least this often (default 30)")
+    _plugin_option(sw)
     sw.set_defaults(func=cmd_sweep)
 
     ref = sub.add_parser("settings", help="print the settings reference (every scenario key)")
@@ -361,6 +399,12 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--out", default="paper", help="output folder (default: paper)")
     bench.add_argument("--workers", type=_positive_int, default=None)
     bench.set_defaults(func=cmd_bench)
+
+    cache = sub.add_parser("cache", help="where wmr's compiled kernels are cached (--prune: "
+                           "remove those of earlier versions of the source)")  # fmt: skip
+    cache.add_argument("--prune", action="store_true",
+                       help="keep only the newest caches of earlier versions")  # fmt: skip
+    cache.set_defaults(func=cmd_cache)
     return parser
 
 
@@ -368,10 +412,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``wmr`` command; returns the exit code."""
     import matplotlib
 
-    from wmr._jit import prune_old_caches
-
     matplotlib.use("Agg")  # the command line writes figures to files; no display is needed
-    prune_old_caches()  # caches of earlier versions of the source (see wmr._jit)
     try:
         args = build_parser().parse_args(argv)
         return args.func(args)

@@ -5,13 +5,10 @@ phases the kernel is built from, called in the kernel's order -- as the update f
 ``control.NonlinearIOSystem`` with sample time ``dt``, so that the loop can be stepped by
 ``control.input_output_response`` or connected to other python-control systems (a reference
 generator, a noise model) through its inputs.  Nothing of the step is written here: the update
-function unpacks the loop's state from the nlsys state vector and calls
-
-1. ``wmr.loop.sense`` -- measure ``z_k = q_k + n_k`` and estimate ``q_hat_k``;
-2. the controller's ``law`` (``wmr.controllers``), then ``wmr.loop.saturate``;
-3. ``wmr.loop.actuate`` -- disturbance, plant over ``[t_k, t_k + dt]``, pose-filter prediction;
-
-so its trajectory is ``wmr.sim.simulate``'s, bit for bit (``tests/test_nlsys.py``).
+function unpacks the loop's state from the nlsys state vector and calls the loop's one step
+(``wmr.loop.python_step``: sense, law, saturate, disturb, plant, pose-filter prediction, in the
+kernel's order, the oracle's true pose included), so its trajectory is
+``wmr.sim.simulate``'s, bit for bit (``tests/test_nlsys.py``).
 
 Signals (python-control's names in brackets)
 
@@ -35,12 +32,13 @@ non-finite or leaves ``divergence_bound``; the nlsys goes on, so compare the two
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from wmr import loop
+from wmr import loop, metrics
 from wmr.scenario import Scenario
 
 __all__ = ["INPUTS", "OUTPUTS", "Layout", "ClosedLoop", "closed_loop", "inputs", "update_function"]
@@ -186,24 +184,30 @@ def inputs(run: loop.Prepared) -> tuple[np.ndarray, np.ndarray]:
 def update_function(run: loop.Prepared, layout: Layout):
     """The nlsys update ``f(t, x, u, params) -> x_next`` of ``run``'s loop (see the module).
 
-    The state handed in is not modified (python-control stores it): ``f`` works on a copy.
+    The state handed in is not modified (python-control stores it): ``f`` works on a copy.  The
+    loop's scoring runs too, into scratch accumulators: its verdict is not the nlsys's (the
+    module's last paragraph), but a non-finite command makes the next state NaN.
     """
     sc = run.scenario
-    dt, law, p = sc.dt, run.controller.law, run.p
-    v_max, w_max = sc.limits.v_max, sc.limits.w_max
-    use_ekf, Rp = run.use_ekf, run.Rp
-    u_cmd, u_applied, z = np.zeros(2), np.zeros(2), np.zeros(3)  # scratch, as in the kernel
+    one_step = loop.python_step(run)
+    dt, p, integrator = sc.dt, run.p, run.integrator
+    v_max, w_max, bound = sc.limits.v_max, sc.limits.w_max, math.inf
+    scratch = (np.zeros(2), np.zeros(2), np.zeros(3))  # as in the kernel
+    acc, status, none = np.zeros(metrics.N_ACC), np.zeros(2, dtype=np.int64), np.zeros((0, 0))
+    plant_arrays = (run.plant_table, run.plant_at, run.plant_ints, run.plant_vel,
+                    run.plant_buffer)  # fmt: skip
 
     def update(t, x, u, params=None):
         x = x.copy()
         q, q_hat, Pq, s, theta, P = layout.split(x)
         k = round(t / dt)
-        loop.sense(k, q, u[0:3].reshape(1, 3), 0, q_hat, Pq, use_ekf, Rp, z)
-        law(p, s, theta, P, q_hat, u[3:8], dt, u_cmd)
-        if not loop.saturate(u_cmd, v_max, w_max):
+        ref = np.vstack((u[3:8], u[3:8]))  # the row at t_k (the second is only scored)
+        stopped = one_step(k, 0, dt, integrator, p, s, theta, P, q, q_hat, ref,
+                           u[0:3].reshape(1, 3), run.use_ekf, Pq, run.Qp, run.Rp,
+                           run.disturbance, v_max, w_max, bound, plant_arrays, acc,
+                           metrics.TRANSIENT, status, scratch, False, (none,) * 5)  # fmt: skip
+        if stopped and status[1] == 1:
             x[:] = np.nan  # the kernel stops the run here
-            return x
-        loop.actuate(run, k, u_cmd, u_applied, q, q_hat, Pq)
         return x
 
     return update

@@ -1,8 +1,8 @@
 """Per-step probes of a closed-loop run: the weight filter and the pose filter's consistency.
 
 A probe is passed to ``wmr.sim.simulate(scenario, controller, seed, probe=...)``: the run goes
-phase by phase through ``wmr.loop.run_probed`` (bit-identical to the compiled kernel) and calls
-the probe's hooks ``after_estimate(k, q, q_hat, Pq, nis)``, ``before_law(k, p, s, theta, P,
+through the loop's Python driver (``wmr.loop.python_step``, bit-identical to the compiled
+kernel) and calls the probe's hooks ``after_estimate(k, q, q_hat, Pq, nis)``, ``before_law(k, p, s, theta, P,
 q_hat)`` and ``after_law(k, p, s, theta, P, q_hat, u)``.  The probes here only read what the hooks
 hand them (by name: ``p.H``, ``p.q_diag``, ``p.R``, ``p.nn_n_h`` of the iapid-nn-dekf parameters)
 and what they saw at the previous step; the law's own logged numbers (``nn_error``,

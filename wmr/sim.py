@@ -29,6 +29,8 @@ def simulate(
     settings=None,
     keep_trajectory: bool = True,
     probe=None,
+    driver: str | None = None,
+    robot=None,
 ) -> RunResult:
     """Run ``controller`` on ``scenario``.
 
@@ -45,16 +47,21 @@ def simulate(
     keep_trajectory : bool
         Keep the logged signals (memory O(N)); otherwise only the metrics (memory O(1)).
     probe : optional
-        An object with per-step hooks (``wmr.loop.run_probed``): the run goes phase by phase
-        through Python (slower, same numbers).
+        An object with per-step hooks ``after_estimate(k, q, q_hat, Pq, nis)``,
+        ``before_law(k, p, s, theta, P, q_hat)``, ``after_law(k, p, s, theta, P, q_hat, u)``
+        (each optional; arrays are live views, copy what you keep): the run goes through the
+        Python driver (slower, same numbers).
+    driver : {None, "compiled", "python"}
+        Which driver runs the step (``wmr.loop.run``): by default the compiled kernel unless the
+        controller, the plant or a probe is Python-level.  Both give the same numbers.
+    robot : callable, optional
+        ``robot(scenario) -> wmr.pyplant.PyPlant``: drive this Python-level robot instead of the
+        scenario's (its delay and disturbance still apply).
     """
-    run = loop.prepare(scenario, controller, seed, settings)
+    run = loop.prepare(scenario, controller, seed, settings, robot=robot)
     n = scenario.n_steps
     logs = loop.Logs.empty(n, len(run.controller.state_names), True) if keep_trajectory else None
-    if probe is None:
-        loop.run_kernel(run, logs)
-    else:
-        loop.run_probed(run, logs, probe)
+    loop.run(run, logs, probe=probe, driver=driver)
     return _result(run, logs)
 
 
@@ -69,7 +76,7 @@ def _result(run: loop.Prepared, logs: loop.Logs | None) -> RunResult:
         n_steps=run.n_steps, rmse=rmse, rmse_robot_frame=rmse_rf, rmse_after_transient=rmse_tail,
         effort=effort,
         diverged=diverged, diverged_at=steps * run.dt if diverged else None,
-        cause=loop.CAUSES[int(status[1])], state_names=ctrl.state_names, settings=run.settings,
+        cause=_cause(run), state_names=ctrl.state_names, settings=run.settings,
         final=ctrl.final_state(run.p, run.s, run.theta, run.P),
         pose_estimate=run.q_hat.copy(), pose_covariance=run.Pq.copy() if run.use_ekf else None,
     )  # fmt: skip
@@ -80,6 +87,15 @@ def _result(run: loop.Prepared, logs: loop.Logs | None) -> RunResult:
         result.q_hat = logs.q_hat[:steps]
         result.u = logs.u[:steps]
         result.state = logs.state[:steps]
-        if not run.scenario.plant.ideal:
+        if run.plant_kind != loop.PLANT_IDEAL:
             result.plant_velocity = logs.vel[:steps]
     return result
+
+
+def _cause(run: loop.Prepared) -> str | None:
+    """Why the run stopped: the loop's cause, or the message of a Python-level controller that
+    stopped it (``wmr.controllers.ControllerStopped``)."""
+    stopped = None if run.controller.compiled else run.controller.stopped(run.p)
+    if stopped is not None and run.status[0] >= 0:
+        return f"controller stopped: {stopped}"
+    return loop.CAUSES[int(run.status[1])]

@@ -26,17 +26,26 @@ row, ``tests/test_registry.py``):
 7. ``label`` and ``colour``: how tables and figures name and draw it.
 8. ``oracle``: a diagnostic arm that reads the true pose (the loop writes it into ``p.truth``
    before the law); not a controller a real robot could run, so not in :data:`NAMES` ("all").
+
+A :class:`PyController` row is a Python-level controller (DESIGN §3.8): for prototypes and for
+laws numba cannot compile (an optimiser in the loop).  Its runs go through the loop's Python
+driver; the row derives ``pack``, ``law`` and ``final_state`` from its ``make`` (see the class).
+
+Rows also come from outside the package: plugins (``wmr.plugins``) add them to :data:`REGISTRY`
+through :func:`register`, after the same contract check (``wmr.plugins.check_row``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field, make_dataclass
+
+import numpy as np
 
 from wmr.controllers import adaptive_nn, backstepping, iapid_nn_dekf, pid
 
-__all__ = ["Controller", "REGISTRY", "NAMES", "ORACLE_NAMES", "PAPER_NAMES", "get", "label",
-           "colour"]
+__all__ = ["Controller", "PyController", "ControllerStopped", "REGISTRY", "NAMES", "BUILTIN_NAMES",
+           "ORACLE_NAMES", "PAPER_NAMES", "get", "label", "colour", "register", "unregister"]
 
 
 @dataclass(frozen=True)
@@ -53,6 +62,104 @@ class Controller:
     label: str
     colour: str
     oracle: bool = False
+
+    #: Whether the law is a jitted function the compiled kernel can inline.
+    compiled = True
+
+
+class ControllerStopped(RuntimeError):
+    """Raised by a :class:`PyController`'s ``step`` to stop the run with a stated cause (e.g. an
+    optimiser that failed too often in a row): the run is recorded as stopped at that step with
+    ``cause = "controller stopped: <message>"``, like a divergence, never as a crash."""
+
+
+@dataclass(frozen=True)
+class PyController:
+    """A Python-level controller (DESIGN §3.8), one registry row.
+
+    Parameters
+    ----------
+    name : str
+        Its name (``--controller NAME``, ``[controllers.NAME]``).
+    make : callable
+        ``make(settings, scenario, rng)`` returns the controller object of one run: its
+        ``step(q_hat, ref, dt)`` returns the command ``(v, w)`` [m/s, rad/s] for the pose estimate
+        ``q_hat = (x, y, theta)`` and the reference row ``ref = (x_r, y_r, theta_r, v_r, w_r)``
+        at ``t_k``; it is called once per control step, in order (``k = 0, 1, ...``), and may
+        raise :class:`ControllerStopped`.  With ``state_names``, ``signals()`` returns the
+        current value of each named signal (logged along the run).  An optional ``final()``
+        returns the record of the run's end (``RunResult.final``; default: the last signals).
+        ``rng`` is the run's initialisation stream (a ``numpy.random.Generator``).
+    Settings : type
+        A frozen dataclass with defaults; the scenario table ``[controllers.NAME]`` is converted
+        into it (unknown keys are errors).
+    label, colour : str
+        How tables and figures name and draw it.
+    uses_estimator : bool
+        Whether it acts on the pose filter's estimate under ``pose_source = "paper"``.
+    state_names : tuple of str
+        The signals ``signals()`` returns.
+    """
+
+    name: str
+    make: Callable
+    Settings: type
+    label: str = ""
+    colour: str | None = None
+    uses_estimator: bool = False
+    state_names: tuple[str, ...] = ()
+    oracle: bool = field(default=False, init=False)
+
+    compiled = False
+
+    def __post_init__(self):
+        object.__setattr__(self, "state_names", tuple(self.state_names))
+        if not self.label:
+            object.__setattr__(self, "label", self.name)
+
+    def pack(self, settings, scenario, rng):
+        """``(p, s, theta, P)`` of the loop: ``p`` the object ``make`` returns, ``s`` the logged
+        signals (initially those of the fresh object), no weights."""
+        obj = self.make(settings, scenario, rng)
+        s = np.zeros(len(self.state_names))
+        if self.state_names:
+            s[:] = obj.signals()
+        return obj, s, _EMPTY, _EMPTY2
+
+    @staticmethod
+    def law(p, s, theta, P, q_hat, ref, dt, u):
+        """The loop's law: ``u = p.step(q_hat, ref, dt)`` (copies handed in), signals into ``s``;
+        a :class:`ControllerStopped` makes the command non-finite (the loop stops the run) and
+        is kept on the object for the run's record."""
+        try:
+            v, w = p.step(q_hat.copy(), ref.copy(), dt)
+        except ControllerStopped as stop:
+            p.__dict__["_wmr_stopped"] = str(stop)
+            u[0] = u[1] = np.nan
+            return
+        u[0] = v
+        u[1] = w
+        if s.size:
+            s[:] = p.signals()
+
+    def final_state(self, p, s, theta, P):
+        """``p.final()`` if the object has one, else the last signals as a dataclass."""
+        if hasattr(p, "final"):
+            return p.final()
+        cls = make_dataclass(f"{self.name}-state".replace("-", "_"),
+                             [(n, float) for n in self.state_names], frozen=True)  # fmt: skip
+        return cls(*(float(x) for x in s))
+
+    @staticmethod
+    def stopped(p) -> str | None:
+        """The message of the :class:`ControllerStopped` that stopped the run, if any."""
+        return getattr(p, "__dict__", {}).get("_wmr_stopped")
+
+
+_EMPTY = np.zeros(0)
+_EMPTY.flags.writeable = False
+_EMPTY2 = np.zeros((0, 0))
+_EMPTY2.flags.writeable = False
 
 
 REGISTRY: dict[str, Controller] = {
@@ -78,15 +185,38 @@ REGISTRY: dict[str, Controller] = {
                    oracle=True),
     )
 }  # fmt: skip
-#: Controller names in table order: the controllers a robot could run (``all``).
-NAMES: tuple[str, ...] = tuple(n for n, c in REGISTRY.items() if not c.oracle)
+#: The built-in controllers a robot could run, in table order (``all`` without plugins).
+BUILTIN_NAMES: tuple[str, ...] = tuple(n for n, c in REGISTRY.items() if not c.oracle)
+#: Controller names in table order: the controllers a robot could run (``all``), the built-in
+#: ones and then those of the plugins loaded in this process (``register``).
+NAMES: tuple[str, ...] = BUILTIN_NAMES
 #: Diagnostic arms that read the true pose (``oracle``), by name only.
 ORACLE_NAMES: tuple[str, ...] = tuple(n for n, c in REGISTRY.items() if c.oracle)
 #: The four controllers of the paper's tables.
 PAPER_NAMES: tuple[str, ...] = ("iapid-nn-dekf", "backstepping", "adaptive-nn", "adaptive-pid")
 
 
-def get(name: str) -> Controller:
+def register(row: Controller | PyController) -> None:
+    """Add a (plugin's) row to the registry and to :data:`NAMES`; ``ValueError`` if its name is
+    already taken.  Check the row first (``wmr.plugins.check_row``)."""
+    global NAMES
+    if row.name in REGISTRY:
+        raise ValueError(f"controller name {row.name!r} is already registered")
+    REGISTRY[row.name] = row
+    if not row.oracle:
+        NAMES = (*NAMES, row.name)
+
+
+def unregister(name: str) -> None:
+    """Remove a plugin's row (the built-in rows cannot be removed)."""
+    global NAMES
+    if name in BUILTIN_NAMES or name in ORACLE_NAMES:
+        raise ValueError(f"{name!r} is a built-in controller")
+    REGISTRY.pop(name, None)
+    NAMES = tuple(n for n in NAMES if n != name)
+
+
+def get(name: str) -> Controller | PyController:
     """The registered controller ``name``; ``KeyError`` with the known names otherwise."""
     try:
         return REGISTRY[name]
