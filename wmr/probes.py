@@ -6,7 +6,8 @@ kernel) and calls the probe's hooks ``after_estimate(k, q, q_hat, Pq, nis)``, ``
 s, theta, P, q_hat)`` and ``after_law(k, p, s, theta, P, q_hat, u)``.  The probes here only read
 what the hooks hand them (by name: ``p.H``, ``p.q_diag``, ``p.R``, ``p.nn_n_h`` of the
 iapid-nn-dekf parameters) and what they saw at the previous step; the law's own logged numbers
-(``nn_error``, ``cov_repairs``) are read afterwards from the run's record (``RunResult.signal``, ``.final``).
+(``nn_error``, ``cov_repairs``) are read afterwards from the run's record
+(``RunResult.signal``, ``.final``).
 
 - :class:`WeightProbe` reads the weight DEKF of ``iapid-nn-dekf`` (eqs. 25-31; §3.4.1-3.4.2 and
   errata E10): ``||H_k||``, the prior and posterior covariance's extreme eigenvalues, the
