@@ -44,6 +44,11 @@ CSV_HEADER = [
     "theta_hat",
     "v",
     "w",
+    "x_meas",
+    "y_meas",
+    "theta_meas",
+    "dv",
+    "dw",
 ]
 
 
@@ -101,7 +106,10 @@ def test_run_writes_summary_trajectory_and_figure(name, tmp_path, capsys):
     per_step = np.array([[float(x) for x in row[9:14]] for row in rows[1:-1]])
     assert_array_equal(per_step[:, :3], r.q_hat)
     assert_array_equal(per_step[:, 3:], r.u)
-    assert rows[-1][9:] == [""] * 5  # no input after the last pose
+    meas = np.array([[float(x) for x in row[14:19]] for row in rows[1:-1]])
+    assert_array_equal(meas[:, :3], r.z)
+    assert_array_equal(meas[:, 3:], r.disturbance)
+    assert rows[-1][9:] == [""] * 10  # no input after the last pose
 
     png = (out / "tracking.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and png[12:16] == b"IHDR"

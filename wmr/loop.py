@@ -309,7 +309,7 @@ def _step_template(
     ``noise`` its measurement noise (row ``i = k - k0``).  Tuples keep the call under CPython's
     30 arguments (beyond them a call is compiled as ``f(*args)``, which numba cannot inline):
     ``plant_arrays = (table, at, ints, vel, buffer)`` of ``wmr.plant.arrays``, ``scratch = (u,
-    ua, z)`` and ``logs = (q, q_hat, u, state, vel)`` of :class:`Logs`.
+    ua, z)`` and ``logs = (q, q_hat, u, state, vel, z)`` of :class:`Logs`.
 
     This function is never called as written: :func:`_bind` makes copies of it whose globals fix
     what varies -- ``law`` (the controller), ``PLANT`` (one of the ``PLANT_*`` kinds) and
@@ -320,7 +320,7 @@ def _step_template(
     phases, with a Python-level law or plant where needed.  Same inputs, same numbers.
     """
     u, ua, z = scratch
-    q_log, qhat_log, u_log, s_log, vel_log = logs
+    q_log, qhat_log, u_log, s_log, vel_log, z_log = logs
     nis = sense(k, q, noise, i, q_hat, Pq, use_ekf, Rp, z)
     if PROBE:  # noqa: F821 - the globals of this template are bound per copy by _bind()
         if probe.after_estimate is not None:  # noqa: F821
@@ -337,6 +337,7 @@ def _step_template(
         if probe.after_law is not None:  # noqa: F821
             probe.after_law(k, p, s, theta, P, q_hat, u)  # noqa: F821
     if keep:
+        z_log[k, :] = z
         qhat_log[k, :] = q_hat
         u_log[k, :] = u
         s_log[k, :] = s[: s_log.shape[1]]
@@ -392,14 +393,14 @@ def _advance_template(
     q, q_hat, ref, noise, use_ekf, Pq, Qp, Rp,
     disturbance, v_max, w_max, bound,
     plant_table, plant_at, plant_ints, plant_vel, plant_buffer,
-    acc, t_tail, status, keep, q_log, qhat_log, u_log, s_log, vel_log,
+    acc, t_tail, status, keep, q_log, qhat_log, u_log, s_log, vel_log, z_log,
 ):  # fmt: skip
     """Advance the loop over steps ``k0 .. k1-1`` (``ref`` holds rows ``k0 .. k1``) by the bound
     copy of :func:`_step_template` (``one_step``, a global of each copy); returns early once the
     run stopped."""
     scratch = (np.zeros(2), np.zeros(2), np.zeros(3))
     plant_arrays = (plant_table, plant_at, plant_ints, plant_vel, plant_buffer)
-    logs = (q_log, qhat_log, u_log, s_log, vel_log)
+    logs = (q_log, qhat_log, u_log, s_log, vel_log, z_log)
     for k in range(k0, k1):
         if one_step(k, k - k0, dt, integrator, p, s, theta, P,  # noqa: F821 - bound by _bind()
                     q, q_hat, ref, noise, use_ekf, Pq, Qp, Rp, disturbance, v_max, w_max, bound,
@@ -500,7 +501,8 @@ def plant_step(run: Prepared):
 @dataclass
 class Logs:
     """Per-step signals of a run (``keep_trajectory``): ``q`` and ``ref`` have ``n + 1`` rows,
-    ``q_hat``, ``u`` and ``state`` ``n`` rows (``state``: the controller's logged entries)."""
+    ``q_hat``, ``u``, ``state`` and ``z`` ``n`` rows (``state``: the controller's logged entries;
+    ``z``: the measured pose, true pose plus noise, the estimator's input)."""
 
     q: np.ndarray
     ref: np.ndarray
@@ -508,6 +510,7 @@ class Logs:
     u: np.ndarray
     state: np.ndarray
     vel: np.ndarray  # the true robot's actual (v, w) at t_k (a non-ideal plant only)
+    z: np.ndarray  # the measured pose at t_k
 
     @classmethod
     def empty(cls, n: int, n_state: int, keep: bool) -> Logs:
@@ -516,7 +519,8 @@ class Logs:
         return cls(q=np.full((rows, 3), np.nan), ref=np.empty((rows, 5)),
                    q_hat=np.full((per_step, 3), np.nan), u=np.full((per_step, 2), np.nan),
                    state=np.full((per_step, n_state), np.nan),
-                   vel=np.full((per_step, 2), np.nan))  # fmt: skip
+                   vel=np.full((per_step, 2), np.nan),
+                   z=np.full((per_step, 3), np.nan))  # fmt: skip
 
 
 def _start(run: Prepared, logs: Logs | None) -> None:
@@ -563,7 +567,7 @@ def run(run: Prepared, logs: Logs | None, probe=None, driver: str | None = None)
             sc.limits.v_max, sc.limits.w_max, sc.divergence_bound,
             run.plant_table, run.plant_at, run.plant_ints, run.plant_vel, run.plant_buffer,
             run.acc, metrics.TRANSIENT, run.status, keep, logs.q, logs.q_hat, logs.u, logs.state,
-            logs.vel,
+            logs.vel, logs.z,
         )  # fmt: skip
         if keep:
             logs.ref[k0 + 1 : k1 + 1] = ref[1:]

@@ -205,7 +205,7 @@ def update_function(run: loop.Prepared, layout: Layout):
         stopped = one_step(k, 0, dt, integrator, p, s, theta, P, q, q_hat, ref,
                            u[0:3].reshape(1, 3), run.use_ekf, Pq, run.Qp, run.Rp,
                            run.disturbance, v_max, w_max, bound, plant_arrays, acc,
-                           metrics.TRANSIENT, status, scratch, False, (none,) * 5)  # fmt: skip
+                           metrics.TRANSIENT, status, scratch, False, (none,) * 6)  # fmt: skip
         if stopped and status[1] == 1:
             x[:] = np.nan  # the kernel stops the run here
         return x
