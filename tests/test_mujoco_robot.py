@@ -9,6 +9,7 @@ quaternion heading and the integral of the measured yaw rate.
 from __future__ import annotations
 
 import math
+import pickle
 from pathlib import Path
 
 import mujoco
@@ -31,8 +32,9 @@ STIFF = {"friction": 1.0, "motor_gain": 20.0, "torque_limit": 20.0}
 #: faster than friction can accelerate the robot (a short wheel spin), then the chassis's
 #: pitch and yaw settle; measured within 2e-5 of the command from 1.2 s on.
 SETTLE = 1.5
-#: Steady (v, w) against the command after SETTLE: MuJoCo's soft contacts leave ~1e-5 (creep).
-VELOCITY_TOL = 1e-4
+#: Steady (v, w) against the command after SETTLE: the tyres roll on their loaded radius (the
+#: contact's static penetration, 1.8e-5 m of 0.05 m: 3.6e-4 relative) and creep (~1e-5).
+VELOCITY_TOL = 5e-4
 #: [m] the pose against the unicycle arc over 3 s at (0.4 m/s, 0.8 rad/s): the soft friction
 #: creeps outward by about v w tc / 2 (slip angle ~ w tc / 2 = 1.6 mrad with the tyres'
 #: time constant tc = 4 ms), turning the path about its start by that angle: <= 1 mm on the
@@ -87,8 +89,9 @@ def test_wheel_speed_setpoints_follow_the_nominal_mapping(command):
     v, w = command
     left = mujoco.mj_name2id(robot.model, mujoco.mjtObj.mjOBJ_ACTUATOR, "left_motor")
     right = mujoco.mj_name2id(robot.model, mujoco.mjtObj.mjOBJ_ACTUATOR, "right_motor")
-    assert_allclose(robot.data.ctrl[left], (v - w * 0.315 / 2) / 0.052, rtol=1e-12, atol=1e-12)
-    assert_allclose(robot.data.ctrl[right], (v + w * 0.315 / 2) / 0.052, rtol=1e-12, atol=1e-12)
+    # 0.315 / 2 is computed as 0.5 * 0.315 in the firmware: rounding only
+    assert_allclose(robot.data.ctrl[left], (v - w * 0.315 / 2) / 0.052, rtol=1e-14, atol=1e-14)
+    assert_allclose(robot.data.ctrl[right], (v + w * 0.315 / 2) / 0.052, rtol=1e-14, atol=1e-14)
 
 
 # -- the physics against closed forms ------------------------------------------------------------
@@ -172,7 +175,8 @@ def test_rests_at_t0_without_settling(table):
 
 
 def test_same_inputs_same_numbers_bit_for_bit():
-    """Two robots, and one robot reset and rerun, give identical poses for the same commands."""
+    """Two robots, one robot reset and rerun, and a robot built from the spec after a trip
+    through pickle (as to a worker) give identical poses for the same commands."""
     rng = np.random.default_rng(7)
     commands = np.column_stack([rng.uniform(-0.3, 0.6, 300), rng.uniform(-2.0, 2.0, 300)])
     spec = spec_of(friction=0.4, com_offset=[0.02, -0.01])
@@ -181,8 +185,10 @@ def test_same_inputs_same_numbers_bit_for_bit():
     robot = MujocoRobot(spec, DT, changes)
     second, _, _ = drive(None, commands, robot=robot)
     third, _, _ = drive(None, commands, robot=robot)  # reset undoes the change of the run before
+    shipped, _, _ = drive(pickle.loads(pickle.dumps(spec)), commands, changes=changes)
     assert_array_equal(first, second)
     assert_array_equal(first, third)
+    assert_array_equal(first, shipped)
 
 
 # -- [[plant.change]] -----------------------------------------------------------------------------

@@ -322,8 +322,8 @@ class MujocoRobot:
                        else math.inf for i in self._motor]  # fmt: skip
         self._radius = (spec.wheel_radius if spec.shipped
                         else (spec.nominal_wheel_radius,) * 2)  # fmt: skip
-        self._half_track_over_r = 0.5 * spec.nominal_track / spec.nominal_wheel_radius
-        self._inv_r = 1.0 / spec.nominal_wheel_radius
+        self._half_track = 0.5 * spec.nominal_track
+        self._r_nominal = spec.nominal_wheel_radius
         self._changes = sorted(((float(at), dict(values)) for at, values in
                                 (_event(c) for c in changes)), key=lambda c: c[0])  # fmt: skip
         for at, values in self._changes:
@@ -385,10 +385,9 @@ class MujocoRobot:
         if self._next_change < len(self._changes):
             self._apply_changes(k * self.dt)
         v, w = float(a[0]), float(a[1])
-        spin = w * self._half_track_over_r
-        ctrl = self._ctrl
-        ctrl[self._motor[0]] = v * self._inv_r - spin
-        ctrl[self._motor[1]] = v * self._inv_r + spin
+        half, r = self._half_track, self._r_nominal
+        self._ctrl[self._motor[0]] = (v - w * half) / r
+        self._ctrl[self._motor[1]] = (v + w * half) / r
         mujoco.mj_step(self.model, self.data, self.n_sub)
         qa = self._qa
         qp = self._qpos
