@@ -3,8 +3,8 @@
 A factorial over what the paper left unvaried, run through the sweep engine (``wmr.sweep``):
 
 - the **plant mechanism** (``wmr.plant``): the ideal unicycle, a 20 % wheel-radius error,
-  unequal wheels, 100 ms actuator lag plus a 2-sample delay, lateral slip, and a payload on a
-  lagged velocity loop (an inner velocity loop whose
+  unequal wheels, 100 ms actuator lag plus a 2-sample delay, an outward lateral skid in turns
+  (``slip``, DESIGN §3.3), and a payload on a lagged velocity loop (an inner velocity loop whose
   ~50 ms lag grows to ~75 ms when the mass grows 50 % at 20 s) (the shipped ``lemniscate-*``
   scenarios' plants);
 - the **SGD rate** as read by the step: mu in {0.9, 9} with the plant Jacobian per step or per
@@ -50,8 +50,9 @@ TITLE = "When does adaptation pay? Regimes of plant, learning rate, gains and no
 #: The arms, in table order; the PID family shares the factors of the SGD step.
 ARMS = ("pid", "adaptive-pid", "iapid-nn-dekf", "iapid-oracle", "backstepping", "adaptive-nn")
 PID_FAMILY = ARMS[:4]
-#: Plant mechanisms: the ``[plant]`` of each (the shipped lemniscate-* scenarios' plants);
-#: "payload" is a payload on a lagged velocity loop.
+#: Plant mechanisms: the ``[plant]`` of each (the shipped lemniscate-* scenarios' plants): "slip"
+#: skids outward (``v_s = -slip v w``; the committed record's slip cells were run with the
+#: earlier inward sign, DESIGN §3.3), "payload" is a payload on a lagged velocity loop.
 MECHANISMS = {
     "ideal": "",
     "wheel-radius": "[plant]\nv_gain = 0.8\nw_gain = 0.8\n",

@@ -299,7 +299,6 @@ INVALID: tuple[Invalid, ...] = (
             ("plant-nan-gain", "[plant]\nv_gain = nan", "plant.v_gain", "nan"),
             ("plant-inf-slip", "[plant]\nslip = inf", "plant.slip", "inf"),
             ("plant-negative-lag", "[plant]\nactuator_tau = -0.1", "plant.actuator_tau", "-0.1"),
-            ("plant-negative-slip", "[plant]\nslip = -0.2", "plant.slip", "-0.2"),
             ("plant-fractional-delay", "[plant]\ndelay_steps = 1.5", "plant.delay_steps", "1.5"),
             ("plant-negative-delay", "[plant]\ndelay_steps = -1", "plant.delay_steps", "-1"),
             ("plant-unknown-model", '[plant]\nmodel = "bicycle"', "plant.model", "'bicycle'"),

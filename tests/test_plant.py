@@ -88,19 +88,37 @@ def test_delay_shifts_the_applied_input_sequence():
     assert_array_equal(delayed, reference)
 
 
-def test_slip_drifts_on_a_circle_of_the_body_velocity():
-    """With v_s = slip v w and constant (v, w), the body moves on a circle about its
+@pytest.mark.parametrize(("slip", "w"), [(0.2, 0.5), (0.2, -0.5), (-0.2, 0.5)],
+                         ids=["outward-left-turn", "outward-right-turn", "inward-left-turn"])
+def test_slip_drifts_on_a_circle_of_the_body_velocity(slip, w):
+    """DESIGN §3.3: v_s = -slip v w.  With constant (v, w) the body moves on a circle about its
     instantaneous centre (-v_s/w, v/w) (robot frame) with radius sqrt(v^2 + v_s^2)/|w|, and its
-    velocity leads the heading by atan2(v_s, v)."""
-    slip, v, w = 0.2, 0.5, 0.5
-    vs = slip * v * w
+    velocity leads the heading by atan2(v_s, v): for slip > 0 away from the turn's centre (to the
+    right in a left turn, w > 0; to the left in a right turn), for slip < 0 into it."""
+    v = 0.5
+    vs = -slip * v * w
     q, _ = drive(scn.Plant(slip=slip), [(v, w)] * 800, q0=(1.0, 2.0, 0.3))
     c, s = math.cos(0.3), math.sin(0.3)
     centre = np.array([1.0, 2.0]) + np.array([[c, -s], [s, c]]) @ [-vs / w, v / w]
-    assert_allclose(np.hypot(*(q[:, :2] - centre).T), math.hypot(v, vs) / w, rtol=EXACT_RTOL)
+    assert_allclose(np.hypot(*(q[:, :2] - centre).T), math.hypot(v, vs) / abs(w),
+                    rtol=EXACT_RTOL)  # fmt: skip
     step = q[401, :2] - q[400, :2]
     drift = math.atan2(step[1], step[0]) - (q[400, 2] + q[401, 2]) / 2
     assert_allclose(drift, math.atan2(vs, v), rtol=1e-9)
+    outward = -math.copysign(1.0, w)  # the side away from the centre of the no-slip turn
+    assert math.copysign(1.0, drift) == (outward if slip > 0 else -outward)
+
+
+def test_a_negative_slip_is_the_earlier_inward_drift_bit_for_bit():
+    """The sign is the only change of DESIGN §3.3's fix: slip = -s now gives the poses that
+    slip = s gave before (v_s = +s v w), here written out as the crab arc with that v_s."""
+    rng = np.random.default_rng(5)
+    commands = rng.uniform(-1.0, 1.0, (30, 2))
+    q, _ = drive(scn.Plant(slip=-0.3), commands, q0=(0.2, -0.1, 0.4))
+    ref = np.array([0.2, -0.1, 0.4])
+    for k, (v, w) in enumerate(commands):
+        plant.crab_arc(ref, v, 0.3 * v * w, w, DT)
+        assert_array_equal(q[k + 1], ref)
 
 
 def test_lagged_velocity_model_steady_state_and_time_constant():
@@ -134,13 +152,13 @@ def test_a_change_applies_from_the_first_step_with_t_k_at_or_after_at():
 
 def _reference_step(spec, q0, vel0, a, dt):
     """One step of the 5-state ODE of DESIGN §3.3 by scipy's DOP853 at tolerance 1e-13 (the
-    oracle; the side velocity v_s = slip v w written here, not taken from wmr.plant)."""
+    oracle; the side velocity v_s = -slip v w written here, not taken from wmr.plant)."""
     row = spec.row()
     model = plant.MODEL_CODES[spec.model]
     tv, tau_v, tw, tau_w = plant.channels(np.array(row), model, *a)
 
     def f(t, x):
-        vs = spec.slip * x[3] * x[4]
+        vs = -spec.slip * x[3] * x[4]
         c, s = math.cos(x[2]), math.sin(x[2])
         return [x[3] * c - vs * s, x[3] * s + vs * c, x[4], (tv - x[3]) / tau_v,
                 (tw - x[4]) / tau_w]

@@ -196,7 +196,7 @@ def test_from_dict_returns_a_scenario_or_raises_scenario_error(doc):
 
 
 _PLANT_BASE = tomllib.loads(
-    BASE_TOML + '[plant]\nmodel = "lagged-velocity"\nv_gain = 0.9\ndelay_steps = 1\nslip = 0.1\n'
+    BASE_TOML + '[plant]\nmodel = "lagged-velocity"\nv_gain = 0.9\ndelay_steps = 1\nslip = -0.1\n'
     "[plant.lagged-velocity]\nmass = 12.0\nfriction = [0.5, 0.02]\n"
     "[[plant.change]]\nat = 1.0\nmass = 15.0\nw_gain = 1.1\n")
 

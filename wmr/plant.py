@@ -23,7 +23,9 @@ moves.  One step, after the command ``u_k`` is saturated (``wmr.loop``):
      tuned with the nominal mass and inertia, ``bw`` its bandwidth, ``f`` viscous friction: a
      first-order lag whose time constant follows the mass);
    - pose: ``x' = v cos(theta) - v_s sin(theta)``, ``y' = v sin(theta) + v_s cos(theta)``,
-     ``theta' = w`` with the lateral slip velocity ``v_s = slip v w`` (robot frame, left +);
+     ``theta' = w`` with the lateral skid velocity ``v_s = -slip v w`` (robot frame, left +):
+     ``slip > 0`` skids outward of the turn (to the right in a left turn), as a centrifugal skid
+     does;
    - with a lag or the velocity loop the robot starts at rest (``v = w = 0`` at ``t = 0``).
 
 ``[[plant.change]]`` events switch parameters mid-run: from the first step with ``t_k >= at``
@@ -181,7 +183,7 @@ def lagged_step(row, model, q, vel, a_v, a_w, dt, n_sub):
 
     Per substep of length ``h`` the velocities and the heading are exact (:func:`first_order`:
     ``theta(t) = theta_0 + integral of w``); the position increments ``integral of (v cos theta -
-    v_s sin theta, v sin theta + v_s cos theta)`` with ``v_s = slip v w`` are taken by 3-point
+    v_s sin theta, v sin theta + v_s cos theta)`` with ``v_s = -slip v w`` are taken by 3-point
     Gauss-Legendre quadrature, exact for polynomials of degree 5: the local error is O(h^7), the
     method is of order 6 (a test checks it).
     """
@@ -199,7 +201,7 @@ def lagged_step(row, model, q, vel, a_v, a_w, dt, n_sub):
             v, _ = first_order(v0, tv_target, tau_v, tj)
             w, dth = first_order(w0, tw_target, tau_w, tj)
             th = th0 + dth
-            vs = slip * v * w
+            vs = -slip * v * w  # outward of the turn for slip > 0 (DESIGN §3.3)
             c = math.cos(th)
             s = math.sin(th)
             fx += _GL_WEIGHTS[j] * (v * c - vs * s)
@@ -246,7 +248,7 @@ def apply(k, dt, ua, q, table, table_at, ints, vel):
     else:
         vel[0] = a_v
         vel[1] = a_w
-        crab_arc(q, a_v, row[SLIP] * a_v * a_w, a_w, dt)
+        crab_arc(q, a_v, -row[SLIP] * a_v * a_w, a_w, dt)  # v_s = -slip v w: outward
 
 
 def arrays(spec, dt: float):

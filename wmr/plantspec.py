@@ -309,9 +309,10 @@ class Plant:
                              doc="Whole-sample input delay ``d >= 0``: the command computed at "
                              "step ``k`` is applied at step ``k + d`` (zero before the first one "
                              "arrives).")  # fmt: skip
-    slip: float = param(0.0, unit="s", rule=nonnegative, column=True, changeable=True,
-                        example=0.1, doc="Lateral slip: side velocity ``v_s = slip v w`` in the "
-                        "robot frame, left positive (>= 0).")  # fmt: skip
+    slip: float = param(0.0, unit="s", column=True, changeable=True, example=0.1,
+                        doc="Lateral skid, signed: side velocity ``v_s = -slip v w`` in the robot "
+                        "frame, left positive; ``slip > 0`` skids outward of the turn, as a tyre "
+                        "does under load.")  # fmt: skip
     model_table: Any = field(default=None, metadata={"toml": False})
     changes: tuple[PlantChange, ...] = field(default=(), metadata={"toml": False})
 
