@@ -112,9 +112,9 @@ FD_RTOL, TURN_RTOL = 1e-7, 1e-4
 @pytest.mark.parametrize("k", [500, 3000], ids=["before the payload", "after the payload"])
 def test_lagged_channels_give_the_true_robots_one_step_jacobian(k):
     """Oracle: the true robot's step (wmr.plant) differentiated in the command by central
-    differences (wmr.identification.plant_jacobian), along a run of the shipped lagged-velocity plant:
-    the heading row of the w column is g_w rho_w dt, the (x, y) part of the v column has norm
-    g_v rho_v dt, where the kinematic G has dt."""
+    differences (wmr.identification.plant_jacobian), along a run of the shipped lagged-velocity
+    plant: the heading row of the w column is g_w rho_w dt, the (x, y) part of the v column has
+    norm g_v rho_v dt, where the kinematic G has dt."""
     import dataclasses
 
     from wmr import scenario as scn

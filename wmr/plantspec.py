@@ -201,8 +201,8 @@ class Model:
     name : str [-]
         The value of ``model`` (and the name of its table, ``[plant.<name>]``).
     table : type or None [-]
-        The frozen dataclass of ``[plant.<name>]``, required with this model and an error with
-        any other (built with :func:`param` fields); None: the model has no table.
+        The class of ``[plant.<name>]`` (made by :func:`plant_table`), required with this model
+        and an error with any other; None: the model has no table.
     excluded : tuple of str [-]
         Keys of ``[plant]`` that are errors with this model (given in the file, or away from
         their default in code), with the reason ``why``.
@@ -245,7 +245,7 @@ class Context:
 
 
 #: The models of ``[plant] model``: the first is the default.  A new model is a row here (its
-#: table a dataclass of :func:`param` fields) and its physics (``wmr.plant``, or a Python plant).
+#: table a :func:`plant_table` class) and its physics (``wmr.plant``, or a Python plant).
 MODELS: dict[str, Model] = {m.name: m for m in (
     Model("kinematic", None, doc="the default: the commanded velocities act directly, possibly "
           "lagged"),
@@ -499,7 +499,8 @@ def parse(data: Any, context: Context) -> Plant:
     for m in tables:
         given = data.get(m.name)
         if m is model:
-            check(given is not None, f"plant.{m.name}", None, f'is required with model = "{m.name}"')
+            check(given is not None, f"plant.{m.name}", None,
+                  f'is required with model = "{m.name}"')  # fmt: skip
             own = given
             model_table = from_table(m.table, given, f"plant.{m.name}")
             if m.finish is not None:

@@ -173,8 +173,8 @@ def markdown() -> str:
             excluded = ", ".join(f"`{k}`" for k in m.excluded)
             out += [f"## `[plant.{m.name}]` (with `model = \"{m.name}\"` only, and required then)",
                     "", f"{m.doc[0].upper()}{m.doc[1:]}."
-                    + (f"  With this model these keys of `[plant]` are errors: {excluded} ({m.why})."
-                       if excluded else ""),
+                    + (f"  With this model these keys of `[plant]` are errors: {excluded} "
+                       f"({m.why})." if excluded else ""),
                     "", *_table(m.table, f"plant.{m.name}."), ""]  # fmt: skip
     out += [
         "## `[[plant.change]]` (zero or more)",
