@@ -133,9 +133,9 @@ def test_run_of_a_non_ideal_plant_names_it_in_the_header_and_the_summary(tmp_pat
     code, stdout, err = _run(["run", str(path), "--controller", "pid", "--out", str(out)], capsys)
     assert (code, err) == (0, "")
     header = stdout.splitlines()[0]
-    assert "plant: dynamic" in header and "at 20 s: mass 15.0" in header
+    assert "plant: lagged-velocity" in header and "at 20 s: mass 15.0" in header
     plant = json.loads((out / "summary.json").read_text())["plant"]
-    assert plant["model"] == "dynamic" and plant["dynamic"]["mass"] == 10.0
+    assert plant["model"] == "lagged-velocity" and plant["lagged-velocity"]["mass"] == 10.0
     assert plant["changes"] == [{"at": 20.0, "mass": 15.0, "inertia": 0.75}]
 
 
