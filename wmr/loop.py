@@ -48,7 +48,7 @@ from wmr._jit import njit
 from wmr.ekf import pose_predict, pose_update
 from wmr.kinematics import integrator_code, step
 from wmr.references import ReferenceSampler
-from wmr.scenario import Scenario
+from wmr.scenario import Plant, Scenario
 
 __all__ = [
     "CHUNK",
@@ -207,8 +207,11 @@ def prepare(scenario: Scenario, controller: str, seed: int | None = None, settin
     std = np.array(scenario.noise.pose_std)
     Qp, Rp = scenario.estimator.matrices(scenario.noise)
     d = scenario.disturbances
-    table, at, ints, vel, buffer = plant.arrays(scenario.plant, scenario.dt)
     make = robot if robot is not None else pyplant.factory(scenario.plant)
+    # a Python-level robot keeps only the loop's delay line from the compiled plant's arrays
+    compiled = (scenario.plant if make is None or scenario.plant.model in plant.MODEL_CODES
+                else Plant(delay_steps=scenario.plant.delay_steps))  # fmt: skip
+    table, at, ints, vel, buffer = plant.arrays(compiled, scenario.dt)
     robot = make(scenario) if make is not None else None
     if robot is not None:
         robot.reset(np.array(scenario.initial_pose, dtype=float))

@@ -35,6 +35,7 @@ import textwrap
 import typing
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from wmr._settings import (
@@ -215,6 +216,14 @@ class Model:
         the scenario's :class:`Context`, for what needs more than the table itself (a file
         relative to the scenario read in, a rule on ``dt``); returns the table to keep, raises
         :class:`SettingError` naming the key (``plant.<name>.<key>``).  None: nothing to do.
+    parse_table : callable or None [-]
+        For a model whose table is not a :func:`plant_table` class (a Python-level robot such as
+        the MuJoCo one, ``wmr.pyplant``): ``parse_table(table, context) -> spec`` validates
+        ``[plant.<name>]`` itself (``table`` is then None).
+    change_keys : tuple of str [-]
+        Keys of such a model that a ``[[plant.change]]`` may set (the robot applies them).
+    change_rule : callable or None [-]
+        ``change_rule(spec, key, value, where, context) -> value``: one such key validated.
     """
 
     name: str
@@ -223,6 +232,14 @@ class Model:
     why: str = ""
     doc: str = ""
     finish: Callable[[Any, Context], Any] | None = None
+    parse_table: Callable[[Any, Context], Any] | None = None
+    change_keys: tuple[str, ...] = ()
+    change_rule: Callable[[Any, str, Any, str, Context], Any] | None = None
+
+    @property
+    def has_table(self) -> bool:
+        """Whether the model has its own table ``[plant.<name>]`` (required with it)."""
+        return self.table is not None or self.parse_table is not None
 
 
 @dataclass(frozen=True)
@@ -244,6 +261,24 @@ class Context:
     source: str = "<scenario>"
 
 
+def _mujoco_table(table: Any, context: Context) -> Any:
+    """``[plant.mujoco]`` (DESIGN §3.7): ``wmr.mujoco_robot.MujocoSpec`` (imported on use: MuJoCo
+    loads only for a scenario that asks for it), ``file`` relative to the scenario's folder, and
+    ``dt`` a whole multiple of ``timestep``."""
+    from wmr.mujoco_robot import MujocoSpec
+
+    source = context.source
+    base_dir = None if source.startswith("<") else Path(source).parent
+    spec = MujocoSpec.from_table(table, base_dir=base_dir, source=source)
+    if math.isfinite(context.dt):
+        spec.check_dt(context.dt, source)
+    return spec
+
+
+def _mujoco_change(spec: Any, key: str, value: Any, where: str, context: Context) -> Any:
+    return spec.change(key, value, where=where.rsplit(".", 1)[0], source=context.source)
+
+
 #: The models of ``[plant] model``: the first is the default.  A new model is a row here (its
 #: table a :func:`plant_table` class) and its physics (``wmr.plant``, or a Python plant).
 MODELS: dict[str, Model] = {m.name: m for m in (
@@ -253,6 +288,11 @@ MODELS: dict[str, Model] = {m.name: m for m in (
           "it has its own lag, the inner velocity loop",
           "an inner velocity loop with inertia: a first-order lag whose time constant follows "
           "the mass"),
+    Model("mujoco", None, ("v_gain", "w_gain", "v_from_w", "w_from_v", "actuator_tau", "slip"),
+          "the physics engine gives the robot's response: wheels, contact, servos",
+          "a MuJoCo rigid-body differential drive with wheel-ground contact (DESIGN §3.7)",
+          parse_table=_mujoco_table, change_keys=("mass", "com_offset", "friction"),
+          change_rule=_mujoco_change),
 )}  # fmt: skip
 #: Earlier model names: an error that names the new one.
 RENAMED = {"dynamic": "lagged-velocity"}
@@ -322,7 +362,9 @@ class Plant:
             value = getattr(self, f.name)
             check(f.name not in model.excluded or value == f.default, f.name, value,
                   f'is not a key of model = "{model.name}" ({model.why})')  # fmt: skip
-        if model.table is None:
+        if model.parse_table is not None:
+            pass  # its spec is validated by parse_table (parse() requires its table)
+        elif model.table is None:
             check(self.model_table is None, "model_table", self.model_table,
                   f'model = "{model.name}" has no table')  # fmt: skip
         elif self.model_table is None:
@@ -348,8 +390,10 @@ class Plant:
                     current.update(_cells(f, getattr(spec, f.name)))
         else:
             current = dict(zip(cols, previous, strict=True))
-        table = MODELS[self.model].table
+        table, own = MODELS[self.model].table, MODELS[self.model].change_keys
         for key, value in (values or {}).items():
+            if key in own:  # a Python-level robot's own parameter: not a column
+                continue
             cls = type(self) if key in _names(type(self)) else table
             current.update(_cells(_field(cls, key), value))
         return [float(current[c]) for c in cols]
@@ -361,7 +405,9 @@ class Plant:
         excluded = MODELS[self.model].excluded
         out = {f.name: _json(getattr(self, f.name)) for f in spec_fields(type(self))
                if f.name not in excluded}  # fmt: skip
-        if self.model_table is not None:
+        if hasattr(self.model_table, "to_json"):  # a Python-level robot's spec says itself
+            out[self.model] = self.model_table.to_json()
+        elif self.model_table is not None:
             out[self.model] = {f.name: _json(getattr(self.model_table, f.name))
                                for f in spec_fields(type(self.model_table))}  # fmt: skip
         out["changes"] = [{"at": c.at, **{k: _json(v) for k, v in c.values.items()}}
@@ -433,6 +479,7 @@ def changeable(model: str, plant: type = Plant) -> tuple[str, ...]:
             if f.metadata["changeable"] and f.name not in m.excluded]  # fmt: skip
     if m.table is not None:
         keys += [f.name for f in spec_fields(m.table) if f.metadata["changeable"]]
+    keys += [k for k in m.change_keys if k not in keys]
     return tuple(keys)
 
 
@@ -448,11 +495,12 @@ def _required(table: Mapping, key: str, where: str):
     return table[key]
 
 
-def _change(table: Any, where: str, duration: float, model: Model, base: Mapping,
-            own: Mapping) -> PlantChange:
+def _change(table: Any, where: str, context: Context, model: Model, base: Mapping,
+            own: Mapping, spec: Any = None) -> PlantChange:
     """One ``[[plant.change]]`` table, validated against the plant's ``model``: each key with
     the type and rule it has in ``[plant]`` (``base``) or in the model's table (``own``)."""
     check(isinstance(table, Mapping), where, table, "must be a table")
+    duration = context.duration
     at = number(f"{where}.at", _required(table, "at", where))
     check(0.0 <= at < duration, f"{where}.at", at, f"must be in [0, duration = {duration})")
     allowed = changeable(model.name)
@@ -465,6 +513,9 @@ def _change(table: Any, where: str, duration: float, model: Model, base: Mapping
             reason = f'is a key of model = "{owner}"' if owner else "cannot change mid-run"
             raise SettingError(f"{where}.{key}", value, f'{reason} (changeable with model = '
                                f'"{model.name}": {", ".join(allowed)})')  # fmt: skip
+        if key in model.change_keys:  # a Python-level robot's own key: the robot applies it
+            values[key] = model.change_rule(spec, key, value, f"{where}.{key}", context)
+            continue
         if key in _names(Plant):  # the fields of [plant] (base), else the model's table (own)
             checked = from_table(Plant, {**base, key: value}, where)
         else:
@@ -485,7 +536,7 @@ def parse(data: Any, context: Context) -> Plant:
         if old in data:
             raise SettingError(f"plant.{old}", None, f'was renamed: use [plant.{new}] with '
                                f'model = "{new}" (DESIGN §3.3)')  # fmt: skip
-    tables = [m for m in MODELS.values() if m.table is not None]
+    tables = [m for m in MODELS.values() if m.has_table]
     base = {k: v for k, v in data.items() if k != "change" and k not in {m.name for m in tables}}
     name = base.get("model", next(iter(MODELS)))
     _model_rule("plant.model", name)
@@ -502,7 +553,10 @@ def parse(data: Any, context: Context) -> Plant:
             check(given is not None, f"plant.{m.name}", None,
                   f'is required with model = "{m.name}"')  # fmt: skip
             own = given
-            model_table = from_table(m.table, given, f"plant.{m.name}")
+            if m.parse_table is not None:
+                model_table = m.parse_table(given, context)
+            else:
+                model_table = from_table(m.table, given, f"plant.{m.name}")
             if m.finish is not None:
                 model_table = m.finish(model_table, context)
         else:
@@ -511,7 +565,7 @@ def parse(data: Any, context: Context) -> Plant:
     events = data.get("change", [])
     check(isinstance(events, list), "plant.change", events,
           "must be an array of tables ([[plant.change]])")  # fmt: skip
-    changes = [_change(t, f"plant.change[{i}]", context.duration, model, base, own)
+    changes = [_change(t, f"plant.change[{i}]", context, model, base, own, model_table)
                for i, t in enumerate(events)]  # fmt: skip
     changes.sort(key=lambda c: c.at)  # stable: changes at the same time apply in file order
     return dataclasses.replace(plant, model_table=model_table, changes=tuple(changes))

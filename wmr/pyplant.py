@@ -85,7 +85,7 @@ def _mujoco(scenario) -> PyPlant:
     from wmr.mujoco_robot import MujocoRobot
 
     spec = scenario.plant
-    return MujocoRobot(spec.mujoco, scenario.dt, [(c.at, c.values) for c in spec.changes])
+    return MujocoRobot(spec.model_table, scenario.dt, [(c.at, c.values) for c in spec.changes])
 
 
 #: Plant models driven from Python: ``[plant] model`` -> ``factory(scenario) -> PyPlant``.
