@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import itertools
 import math
-import os
 import sys
 import time
 from pathlib import Path
@@ -118,14 +117,12 @@ def _write_specs(folder: Path, d: dict) -> tuple[Path, Path]:
 
 
 def _store(out: Path, quick: bool) -> Path:
-    """Where the sweeps' stores live: beside nothing that is committed, named by the sources
-    (a change of wmr starts afresh; an interrupted study resumes)."""
-    from wmr._jit import source_digest
+    """Where the sweeps' stores live: beside nothing that is committed (the studies' folder's
+    ``regimes/``); an interrupted study resumes, a store of another design or of other code is
+    set aside and rebuilt (``wmr.engine.sweeps``)."""
+    from wmr.engine.store import studies_folder
 
-    if quick:
-        return Path(out) / ".regimes-store"
-    base = Path(os.environ.get("WMR_STORES", Path.home() / ".cache" / "wmr" / "stores"))
-    return base / f"{STEM}-{source_digest()}"
+    return Path(out) / ".regimes-store" if quick else studies_folder() / STEM
 
 
 def _frame(stores: list[Path], d: dict):
@@ -256,7 +253,8 @@ def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
     family, others = _write_specs(store / "specs", d)
     t0 = time.perf_counter()
     manifests = [sweep.run_sweep(sweep.load_spec(p), store / p.stem, workers=workers,
-                                 progress=None) for p in (family, others)]  # fmt: skip
+                                 progress=None, stale="set-aside")
+                 for p in (family, others)]  # fmt: skip
     seconds = time.perf_counter() - t0
     rows = _frame([store / "family", store / "others"], d)
     cs = cells(rows, d)

@@ -300,7 +300,8 @@ def cmd_sweep(args) -> int:
               f"{len(spec.seeds)} seeds) into {args.out}", flush=True)  # fmt: skip
         manifest = sweep.run_sweep(spec, args.out, workers=args.workers,
                                    scheduler=args.scheduler, batch_seconds=args.batch_seconds,
-                                   flush_seconds=args.flush_seconds)  # fmt: skip
+                                   flush_seconds=args.flush_seconds,
+                                   retry_errors=args.retry_errors)  # fmt: skip
     except sweep.SweepError as err:
         raise UsageError(str(err)) from None
     rate = manifest["runs_per_s"]
@@ -387,6 +388,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="work per task, in seconds (default 2)")
     sw.add_argument("--flush-seconds", type=_positive_float, default=30.0,
                     help="write completed rows at least this often (default 30)")
+    sw.add_argument("--retry-errors", action="store_true",
+                    help="run again the jobs whose stored row is an error (the new rows "
+                         "supersede them)")  # fmt: skip
     _plugin_option(sw)
     sw.set_defaults(func=cmd_sweep)
 
@@ -412,6 +416,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``wmr`` command; returns the exit code."""
     import matplotlib
 
+    from wmr.engine.faults import RetriesExhausted
+
     matplotlib.use("Agg")  # the command line writes figures to files; no display is needed
     try:
         args = build_parser().parse_args(argv)
@@ -422,6 +428,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130
+    except RetriesExhausted as err:  # a transient failure that persisted: what finished is kept
+        print(f"error: {err}", file=sys.stderr)
+        return 1
     except Exception as err:  # noqa: BLE001 - the contract: one line, exit 1
         print(f"error: unexpected failure: {type(err).__name__}: {err}", file=sys.stderr)
         if os.environ.get("WMR_DEBUG"):
