@@ -75,10 +75,10 @@ from analysis._boundedness_views import figure, notes, summary, table
 from wmr import loop
 from wmr import scenario as scn
 from wmr import stability as stab
+from wmr.engine.jobs import Job
 from wmr.probes import PoseProbe, WeightProbe, identical_runs, target_noise
 from wmr.scenario import Scenario
 from wmr.sim import simulate
-from wmr.engine.jobs import Job
 
 __all__ = [
     "STEM",

@@ -23,9 +23,17 @@ from typing import Any
 from wmr.engine.batching import batches
 from wmr.engine.cluster import LoopbackCluster
 from wmr.engine.driver import execute
-from wmr.engine.executors import (LOCAL_CLUSTER_CONFIG, WINDOW_PER_WORKER, WORKER_ENV, DaskEngine,
-                                  Engine, SerialEngine, default_workers, engine,
-                                  run_batch)  # fmt: skip
+from wmr.engine.executors import (
+    LOCAL_CLUSTER_CONFIG,
+    WINDOW_PER_WORKER,
+    WORKER_ENV,
+    DaskEngine,
+    Engine,
+    SerialEngine,
+    default_workers,
+    engine,
+    run_batch,  # fmt: skip
+)
 from wmr.engine.faults import RETRIES, RetriesExhausted
 from wmr.engine.jobs import Job, run_job, warm_up
 from wmr.engine.progress import Progress

@@ -395,9 +395,8 @@ def summarise(out: str | Path, spec: Spec) -> dict:
     and the main effects (mean position RMSE against each factor, per controller)."""
     import matplotlib.pyplot as plt
 
-    from wmr.io import atomic_write_text, save_figure
-
     from wmr.engine.store import ShardStore
+    from wmr.io import atomic_write_text, save_figure
 
     out = Path(out)
     table = ShardStore(out).read()
