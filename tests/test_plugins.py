@@ -199,3 +199,55 @@ def test_the_worker_loader_imports_the_file_under_the_drivers_module_name(plugin
                           capture_output=True, text=True, cwd=tmp_path)  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert p.module in done.stdout
+
+
+PLUGIN_SPEC = """\
+name = "plugin-sweep"
+scenarios = ["short.toml"]
+controllers = ["simple-compiled", "simple-python"]
+seeds = 2
+plugins = ["my_trackers.py"]
+
+[factors]
+"controllers.*.gains" = [[1.0, 2.0], [2.0, 4.0], [3.0, 1.0]]
+"""
+
+
+def test_a_plugin_sweeps_on_every_engine_with_the_serial_rows(tmp_path_factory, clean_registry):
+    """``plugins = [...]`` in a spec: serial, a 2-worker LocalCluster, and a scheduler with two
+    worker processes started on 127.0.0.1 in a folder that does not hold the plugin (the file's
+    content travels to the workers: ``wmr.engine.plugins_dask``) give the same rows."""
+    from cases import SHORT_LEMNISCATE
+
+    from wmr import study, sweep
+
+    folder = tmp_path_factory.mktemp("plugin-sweep")
+    (folder / "my_trackers.py").write_text(example("plugin-file"))
+    (folder / "short.toml").write_text(SHORT_LEMNISCATE.format(duration=2.0))
+    (folder / "spec.toml").write_text(PLUGIN_SPEC)
+    spec = sweep.load_spec(folder / "spec.toml")
+    assert "simple-python" in controllers.REGISTRY
+
+    def rows(out):
+        df = sweep.read_rows(out).to_pandas().sort_values("job_id").reset_index(drop=True)
+        assert set(df.status) == {"ok"}, df.error.tolist()
+        return df.drop(columns=[c for c in df.columns if c in ("error",)])
+
+    sweep.run_sweep(spec, folder / "serial", workers=1, progress=False)
+    serial = rows(folder / "serial")
+    assert len(serial) == 3 * 2 * 2
+    sweep.run_sweep(spec, folder / "local", workers=2, progress=False, batch_seconds=0.001)
+    assert rows(folder / "local").equals(serial)
+    workers_home = tmp_path_factory.mktemp("elsewhere")
+    with study.LoopbackCluster(workers_home / "cluster", workers=2, timeout=240) as c:
+        sweep.run_sweep(spec, folder / "remote", scheduler=c.address, progress=False,
+                        batch_seconds=0.001)  # fmt: skip
+    assert rows(folder / "remote").equals(serial)
+
+
+def test_a_bad_plugin_in_a_spec_is_a_sweep_error(tmp_path, clean_registry):
+    from wmr import sweep
+
+    (tmp_path / "spec.toml").write_text(PLUGIN_SPEC.replace("my_trackers.py", "nowhere.py"))
+    with pytest.raises(sweep.SweepError, match=r"plugins = 'nowhere.py'.*cannot be read"):
+        sweep.load_spec(tmp_path / "spec.toml")

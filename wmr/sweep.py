@@ -64,7 +64,8 @@ __all__ = ["SweepError", "Factor", "Spec", "load_spec", "loads_spec", "design_po
 
 #: Design kinds.
 KINDS = ("grid", "sobol", "lhs", "random")
-_TOP_KEYS = {"name", "scenarios", "controllers", "seeds", "design", "factors", "measures"}
+_TOP_KEYS = {"name", "scenarios", "controllers", "seeds", "design", "factors", "measures",
+             "plugins"}
 
 
 class SweepError(InputError):
@@ -237,6 +238,7 @@ def loads_spec(text: str, source: str = "<spec>") -> Spec:
              f"unknown key (known: {', '.join(sorted(_TOP_KEYS))})")  # fmt: skip
     name = data.get("name")
     fail(isinstance(name, str) and name.strip() != "", "name", name, "must be a non-empty string")
+    loaded = _plugins(data.get("plugins", []), source, fail)
     names = data.get("controllers")
     fail(isinstance(names, list) and len(names) > 0, "controllers", names,
          "must be a non-empty list of controller names")  # fmt: skip
@@ -275,10 +277,30 @@ def loads_spec(text: str, source: str = "<spec>") -> Spec:
              for p in _named_files(d, src)}  # fmt: skip
     if files:  # (a spec that names no file keeps the digest it always had)
         inputs["files"] = files
+    if loaded:  # the plugins' code is an input of their runs
+        inputs["plugins"] = {p.ref: hashlib.sha256(p.source).hexdigest() if p.source else p.ref
+                             for p in loaded}  # fmt: skip
     digest = hashlib.sha256(json.dumps(inputs, sort_keys=True, default=str).encode()).hexdigest()
     return Spec(name=name, source=source, scenarios=tuple(entries), controllers=tuple(names),
                 seeds=tuple(seeds), design=design, factors=factors, points=tuple(points),
                 runs=runs, digest=digest, measures=tuple(dict.fromkeys(measures)))  # fmt: skip
+
+
+def _plugins(refs: Any, source: str, fail) -> tuple:
+    """Load the spec's ``plugins`` (DESIGN §3.8: files relative to the spec, or module names)
+    before its controllers are checked; a bad plugin is a :class:`SweepError` naming it."""
+    from wmr import plugins
+
+    fail(isinstance(refs, list) and all(isinstance(r, str) for r in refs), "plugins", refs,
+         "must be a list of plugin files or module names")  # fmt: skip
+    base = Path(source).parent if not source.startswith("<") else None
+    out = []
+    for ref in refs:
+        try:
+            out.append(plugins.load(ref, base_dir=base))
+        except plugins.PluginError as err:
+            fail(False, "plugins", ref, str(err))
+    return tuple(out)
 
 
 def _named_files(doc: Mapping, source: str) -> list[Path]:

@@ -166,6 +166,9 @@ class DaskEngine(Engine):
                                             env=dict(WORKER_ENV))  # fmt: skip
             self.client = Client(self.cluster, set_as_default=False)
             self.name = f"dask LocalCluster ({n} worker processes)"
+        from wmr.engine.plugins_dask import ship
+
+        ship(self.client)  # the driver's plugin controllers, on every worker (DESIGN §3.8)
         self.workers = max(1, len(self.client.scheduler_info(n_workers=-1)["workers"]))
 
     def map_batches(self, fn, batches, keys):
