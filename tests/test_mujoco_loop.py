@@ -157,3 +157,42 @@ def test_a_users_robot_sweeps_on_every_engine_with_the_serial_rows(tmp_path_fact
         sweep.run_sweep(spec, folder / "remote", scheduler=c.address, progress=False,
                         batch_seconds=0.001)  # fmt: skip
     assert rows(folder / "remote").equals(serial)
+
+
+MUJOCO_SHIPPED = sorted(p.stem for p in (Path(scn.builtin("lemniscate")).parent / "mujoco")
+                        .glob("*.toml"))  # fmt: skip
+
+
+def _saturated_share(sc, r) -> float:
+    """The share of steps at which a servo was at its torque limit: the run's commands replayed
+    through a fresh robot (the loop's contract, checked above) with its diagnostics read."""
+    from wmr.mujoco_robot import DIAGNOSTICS
+
+    robot = MujocoRobot(sc.plant.model_table, sc.dt, [(c.at, c.values) for c in sc.plant.changes])
+    robot.reset(np.array(sc.initial_pose))
+    d, hit = np.empty(len(DIAGNOSTICS)), 0
+    for k in range(len(r.u)):
+        robot.advance(k, r.u[k] + r.disturbance[k])  # no delay in the shipped scenarios
+        robot.diagnostics(d)
+        hit += d[DIAGNOSTICS.index("saturated")] > 0
+    return hit / len(r.u)
+
+
+@pytest.mark.parametrize("name", MUJOCO_SHIPPED)
+def test_the_shipped_mujoco_scenarios_run(name):
+    sc = scn.load(scn.builtin(f"mujoco/{name}"))
+    assert sc.plant.model == "mujoco" and sc.plant.delay_steps == 0
+    r = simulate(sc, "backstepping", 0)
+    assert not r.diverged, (name, r.cause)
+    if name == "lemniscate-torque-limit":  # stated in the scenario file: about a tenth
+        share = _saturated_share(sc, r)
+        assert 0.05 <= share <= 0.2, share
+        assert _saturated_share(scn.load(scn.builtin("mujoco/lemniscate")),
+                                simulate(scn.load(scn.builtin("mujoco/lemniscate")),
+                                         "backstepping", 0)) < share  # fmt: skip
+
+
+def test_seven_mujoco_scenarios_ship():
+    assert MUJOCO_SHIPPED == ["lemniscate", "lemniscate-low-friction", "lemniscate-payload",
+                              "lemniscate-torque-limit", "lemniscate-unequal-wheels",
+                              "sinusoid", "sinusoid-perturbed"]  # fmt: skip
