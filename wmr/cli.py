@@ -173,15 +173,37 @@ def _for_figure(r):
                                final=None)  # fmt: skip
 
 
+def _checkout() -> Path | None:
+    """The wmr repository checkout this ``wmr`` belongs to (its ``analysis/`` beside ``wmr/``):
+    the package's own folder's parent (an editable install), else the working folder or one of
+    its parents."""
+    import wmr
+
+    here = Path(wmr.__file__).resolve().parent.parent
+    for root in (here, *(p for p in (Path.cwd(), *Path.cwd().parents))):
+        if (root / "analysis" / "__init__.py").is_file() and (root / "wmr").is_dir():
+            return root
+    return None
+
+
 def _studies():
-    """The study registry of ``analysis/`` (the CLI is the one place where wmr reaches into it)."""
-    try:
-        import analysis
-    except ModuleNotFoundError as err:
-        if err.name == "analysis":
-            raise UsageError("the studies (analysis/) are not available in this installation"
-                             ) from None  # fmt: skip
-        raise
+    """The study registry of ``analysis/`` (the CLI is the one place where wmr reaches into it).
+
+    The studies are the repository's, not part of the installed package (a top-level package
+    named ``analysis`` would clash with any other project's): they are found in the checkout
+    (:func:`_checkout`); outside one this is exit 2 with one line."""
+    root = _checkout()
+    if root is None:
+        raise UsageError("the studies (analysis/) live in the wmr repository: run this command "
+                         "from a checkout of it (git clone, then make reproduce)")  # fmt: skip
+    if str(root) not in sys.path:
+        sys.path.insert(0, str(root))
+    import analysis
+
+    found = Path(analysis.__file__).resolve().parent
+    if found != root / "analysis":
+        raise UsageError(f"another package named 'analysis' ({found}) shadows the studies of "
+                         f"{root}")  # fmt: skip
     return analysis
 
 
