@@ -348,7 +348,8 @@ def law(p, s, theta, P, q_hat, ref, dt, u):
     if s[S_STARTED] != 0.0:
         s[S_EST : S_EST + 10] = s[S_NEXT : S_NEXT + 10]
     _regress(p, s, q_hat, dt)
-    backstepping.law(p[P_BSC : P_BSC + 4], s[:0], theta, P, q_hat, ref, dt, u)  # u = u*
+    e = tracking_error(q_hat, ref, p[3] != 0.0)
+    backstepping.command(p, e, ref, u)  # u = u* of (A2)
     a, b, c, d = s[S_EST], s[S_EST + 1], s[S_EST + 2], s[S_EST + 3]
     det = a * c - b * d
     v_c = min(max((c * u[0] - b * u[1]) / det, -p[P_LIMITS]), p[P_LIMITS])
@@ -357,7 +358,6 @@ def law(p, s, theta, P, q_hat, ref, dt, u):
     u[1] = w_c
     s[S_PREV_U] = v_c
     s[S_PREV_U + 1] = w_c
-    e = tracking_error(q_hat, ref, p[3] != 0.0)
     sn = math.sin(e[2]) / p[1]
     phi_v, phi_w = s[S_PHI], s[S_PHI + 1]
     eps_v = a * phi_v + b * phi_w - s[S_Z]
