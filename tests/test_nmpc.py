@@ -3,8 +3,9 @@
 Oracles: ipopt converged tightly on the same problem (the first command of the other solvers),
 an independent evaluation of the cost (M1) with the library's jitted ZOH step
 (``wmr.kinematics.step``), the reference sampler the loop reads, a fine-grid time average for the
-warm-start shift, and the limits themselves.  The closed-loop checks wait for the Python driver
-(issue 21; listed in the module docstring's report).
+warm-start shift, and the limits themselves.  The closed-loop checks (tracking to the solver's
+tolerance, RMSE against the fixed PID) wait for the Python driver of issue 21: no test here runs
+a loop of its own.
 """
 
 from __future__ import annotations
@@ -265,7 +266,7 @@ def test_box_qp_is_the_kkt_point(seed):
     assert np.abs(grad[free]).max(initial=0.0) < 1e-9
     assert np.all(grad[d <= lo] >= -1e-9) and np.all(grad[d >= hi] <= 1e-9)
     ref = minimize(lambda x: 0.5 * x @ H @ x + g @ x, np.zeros(n), jac=lambda x: H @ x + g,
-                   bounds=list(zip(lo, hi)), method="L-BFGS-B",
+                   bounds=list(zip(lo, hi, strict=True)), method="L-BFGS-B",
                    options={"ftol": 1e-15, "gtol": 1e-12, "maxiter": 10_000})  # fmt: skip
     assert np.allclose(d, ref.x, atol=1e-5)
 

@@ -316,7 +316,7 @@ _QP_OPTIONS = {"print_iter": False, "print_header": False, "print_info": False,
                "error_on_fail": False}  # fmt: skip
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def problem(horizon: int, integrator: str = "exact", solver: str = "rti",
             tolerance: float = 1e-10, max_iterations: int = 1) -> Problem:
     """The :class:`Problem` of this structure, built on first use and cached for the process
