@@ -21,7 +21,7 @@ from wmr._jit import njit
 from wmr._settings import check
 from wmr.kinematics import tracking_error
 
-__all__ = ["Settings", "State", "STATE_NAMES", "pack", "final_state", "law"]
+__all__ = ["Settings", "State", "STATE_NAMES", "pack", "final_state", "law", "command"]
 
 #: Controller-state entries logged along a run (none: the law is static).
 STATE_NAMES: tuple[str, ...] = ()
@@ -66,10 +66,16 @@ def final_state(p, s, theta, P) -> State:
 
 
 @njit
-def law(p, s, theta, P, q_hat, ref, dt, u):
-    """Write the backstepping input ``u = (v, w)`` for estimate ``q_hat`` and sample ``ref``."""
-    e = tracking_error(q_hat, ref, p[3] != 0.0)
+def command(p, e, ref, u):
+    """Write Kanayama's command ``u = (v, w)`` for the tracking error ``e`` (eq. 6) and the
+    reference sample ``ref``, gains ``p[:3]`` (the law below, and ``adaptive_bsc``)."""
     v_r = ref[3]
     w_r = ref[4]
     u[0] = v_r * math.cos(e[2]) + p[0] * e[0]
     u[1] = w_r + v_r * (p[1] * e[1] + p[2] * math.sin(e[2]))
+
+
+@njit
+def law(p, s, theta, P, q_hat, ref, dt, u):
+    """Write the backstepping input ``u = (v, w)`` for estimate ``q_hat`` and sample ``ref``."""
+    command(p, tracking_error(q_hat, ref, p[3] != 0.0), ref, u)
