@@ -149,21 +149,26 @@ def test_reads_only_what_a_robot_logs(tmp_path, recovered):
     assert minimal.dt == full.dt
 
 
-#: Seeds of the coverage test, and the per-parameter acceptance: a 95 % interval covers the
-#: truth in at least 15 of 20 seeds (P(Binomial(20, 0.95) <= 14) = 3e-4 per parameter).
-COVERAGE_SEEDS, COVERAGE_MIN = range(20), 15
+#: Per-parameter acceptance of the coverage test: a 95 % interval covers the truth in at least
+#: the 0.05 % quantile of Binomial(seeds, 0.95) of the seeds (20 seeds: >= 15, P(fail) = 3e-4).
+COVERAGE_ALPHA = 5e-4
 
 
-@pytest.mark.slow
-def test_intervals_cover_the_truth(tmp_path):
-    """Over 20 seeds of 10 s closed-loop logs, each parameter's 95 % interval covers the truth
-    at its nominal rate (binomial band above), and the standardised error ``L^-1 (p_hat - p)``
+@pytest.mark.parametrize("seeds", [
+    pytest.param(range(20), id="20-seeds"),
+    pytest.param(range(20, 100), id="80-more-seeds", marks=pytest.mark.slow),
+])  # fmt: skip
+def test_intervals_cover_the_truth(tmp_path, seeds):
+    """Over 20 (slow: 80 more) seeds of 10 s closed-loop logs, each parameter's 95 % interval
+    covers the truth at its nominal rate (binomial band above; observed: 112 of 120 intervals
+    over seeds 0-19, 457 of 480 over 20-99), and the standardised error ``L^-1 (p_hat - p)``
     (``L L^T`` the reported covariance) is N(0, I): its squared norm summed over the seeds lies
-    in the 99.9 % band of chi-square(6 x 20) -- intervals 25 % too narrow or too wide fail it."""
+    in the 99.9 % band of chi-square(6 x seeds) (observed 128.8 for 120 dof, 519 for 480):
+    intervals 25 % too narrow or too wide fail it."""
     sc = closed_loop(10.0)
     truth = np.array([TRUTH[p] for p in idf.PARAMETERS])
     covered, chi2 = np.zeros(len(truth), dtype=int), 0.0
-    for seed in COVERAGE_SEEDS:
+    for seed in seeds:
         path, _ = logged(tmp_path, sc, seed)
         ident = idf.identify(idf.read_log(path), max_delay=3)
         assert ident.delay == DELAY and not ident.not_identifiable
@@ -171,15 +176,17 @@ def test_intervals_cover_the_truth(tmp_path):
         covered += (lo <= truth) & (truth <= hi)
         err = np.array([ident.values[p] for p in idf.PARAMETERS]) - truth
         chi2 += float(err @ np.linalg.solve(ident.covariance, err))
-    dof = len(truth) * len(COVERAGE_SEEDS)
-    assert np.all(covered >= COVERAGE_MIN), dict(zip(idf.PARAMETERS, covered.tolist()))
+    n, dof = len(seeds), len(truth) * len(seeds)
+    minimum = stats.binom.ppf(COVERAGE_ALPHA, n, 0.95)
+    assert np.all(covered >= minimum), dict(zip(idf.PARAMETERS, covered.tolist(), strict=True))
     assert stats.chi2.ppf(0.0005, dof) <= chi2 <= stats.chi2.ppf(0.9995, dof), chi2 / dof
 
 
 def test_smooth_commands_leave_the_delay_open(tmp_path):
-    """Backstepping's smooth commands cannot tell a 2-step delay with a 50 ms lag from a 1-step
-    delay with a 60 ms lag: the 95 % delay set says so ("not exact") instead of guessing."""
-    path, _ = logged(tmp_path, closed_loop(20.0), controller="backstepping")
+    """Backstepping's smooth commands cannot tell a 2-step delay with a 50 ms lag from a 1- or
+    3-step delay with a longer or shorter lag: the 95 % delay set says so ("not exact") instead
+    of guessing (10 s logs: the set held 2 and another delay on each of seeds 0-19)."""
+    path, _ = logged(tmp_path, closed_loop(10.0), controller="backstepping")
     ident = idf.identify(idf.read_log(path), max_delay=3)
     assert DELAY in ident.delay_set and len(ident.delay_set) > 1
     assert "not exact" in idf.to_toml(ident)
@@ -235,8 +242,9 @@ def test_proportional_commands_confound_the_coupling(tmp_path):
 
 def test_constant_command(tmp_path):
     """A command that never changes: the lag and the delay are said to be not identifiable
-    (only the assumed start from rest would tell them), and the coupling not told from the
-    gains; the gains of the circle it drives are still found."""
+    (only the assumed start from rest would tell them; the delay line says so and keeps the
+    0 the fit used), and the coupling not told from the gains; the gains of the circle it drives
+    are still found."""
     path = hand_made(tmp_path, np.tile((0.4, 0.5), (N_HAND, 1)), plant=scn.Plant(v_gain=0.9))
     ident = idf.identify(idf.read_log(path), max_delay=MAX_DELAY)
     for p in ("actuator_tau", "delay_steps"):
@@ -244,7 +252,8 @@ def test_constant_command(tmp_path):
     assert {"v_from_w", "w_from_v"} <= set(ident.not_identifiable)
     assert abs(ident.values["v_gain"] - 0.9) <= GAIN_TOL
     assert abs(ident.values["w_gain"] - 1.0) <= GAIN_TOL
-    assert "delay_steps" not in idf.to_toml(ident).split("[plant]")[1].split("# delay")[0]
+    (line,) = [x for x in idf.to_toml(ident).splitlines() if x.startswith("delay_steps")]
+    assert line.startswith("delay_steps = 0 ") and "not identifiable from this log" in line
 
 
 def test_nothing_identifiable_is_exit_2(tmp_path, capsys):
@@ -281,9 +290,9 @@ def _edit(rows, line, col, value):
     (_edit(_good_rows(), 7, 0, "0.04"), "line 7 column t = 0.04: not after the previous"),
     (_edit(_good_rows(), 7, 0, "0.0501"), "line 7 column t = 0.0501: not uniformly sampled"),
     (_good_rows(30), "too short"),
-    (_edit(_good_rows(), 12, 3, "abc"), "line 12 column x_meas = 'abc': not a number"),
+    (_edit(_good_rows(), 12, 3, "abc"), "line 12 column x_meas = 'abc': not a finite number"),
     (_edit(_good_rows(), 12, 5, "nan"), "line 12 column theta_meas = 'nan': not a finite"),
-    (_edit(_good_rows(), 12, 2, ""), "line 12 column w = '': not a number"),
+    (_edit(_good_rows(), 12, 2, ""), "line 12 column w = '': not a finite number"),
     (_good_rows()[:40] + [["0.39", "0.3"]] + _good_rows()[41:], "line 41: has 2 cells"),
 ], ids=["empty", "missing-column", "t-not-increasing", "t-not-uniform", "too-short",
         "non-numeric", "nan", "empty-cell", "short-row"])  # fmt: skip

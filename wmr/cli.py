@@ -429,7 +429,7 @@ def build_parser() -> argparse.ArgumentParser:
     idf.add_argument("--max-delay", type=_nonnegative_int, default=None,
                      help="largest delay searched, in steps (default 10)")  # fmt: skip
     idf.add_argument("--segment", type=_positive_float, default=None,
-                     help="multiple-shooting segment length [s] (default 5)")  # fmt: skip
+                     help="multiple-shooting segment length [s] (default 10)")  # fmt: skip
     idf.set_defaults(func=cmd_identify)
 
     cache = sub.add_parser("cache", help="where wmr's compiled kernels are cached (--prune: "

@@ -1,57 +1,55 @@
 """``wmr identify``: the kinematic ``[plant]`` of DESIGN §3.3 fitted to a robot's log.
 
-The log.  A CSV file with a header; the columns read (others, e.g. the true pose ``x, y, theta``
-of ``wmr run``'s trajectory CSV, are ignored: a real robot's log does not have them):
+The log: a CSV with a header and one row per control step ``t_k`` -- ``t`` [s] (strictly
+increasing, constant step ``dt``: the delay is in steps), ``v, w`` [m/s, rad/s] the saturated
+command sent at ``t_k``, ``x_meas, y_meas, theta_meas`` [m, m, rad] the *measured* pose
+``z_k = q_k + n_k`` (heading wrapped or not), optionally ``dv, dw`` the disturbance in force,
+added to the delayed command before the plant (0 if absent).  Other columns -- ``wmr run``'s true
+pose ``x, y, theta`` among them, which a real robot's log lacks -- are ignored; trailing rows with
+empty per-step cells (``wmr run``'s last instant) are dropped.  The robot is at rest at the first
+row with no command in its delay line (§3.3; what ``wmr run`` logs).
 
-- ``t`` [s], strictly increasing with a constant step ``dt`` (the plant's delay is in steps);
-- ``v, w`` [m/s, rad/s]: the saturated command sent at ``t_k``;
-- ``x_meas, y_meas, theta_meas`` [m, m, rad]: the measured pose ``z_k = q_k + n_k`` at ``t_k``
-  (``theta_meas`` unwrapped or wrapped: residuals are wrapped);
-- ``dv, dw`` (optional, 0 if absent): the disturbance in force at ``t_k``, added to the delayed
-  command before the plant (``wmr.loop.disturb``).
-
-Trailing rows whose per-step cells are all empty (the last instant of ``wmr run``'s CSV) are
-dropped.  The robot is at rest at the first row and no command is in the delay line before it
-(§3.3: what ``wmr run`` logs).
-
-The model: ``wmr.plant``'s kinematic robot with the parameters ``PARAMETERS`` and the integer
-``delay_steps``, driven by the logged commands (:func:`replay`).  The fit is **output error**:
-the residual is the measured pose minus the pose the plant *simulates* over the log's commands
-(heading wrapped), per channel divided by the noise level estimated from second differences of
-the measured pose (``var(Δ²z) = 6 σ²`` for white noise), minimised by
-``scipy.optimize.least_squares`` (``actuator_tau >= 0``); the delay by search over ``0 ..
-max_delay``.  Equation error on differenced noisy poses would be biased, its intervals wrong: the
-noise on increments ``n_{k+1} - n_k`` is MA(1) and sits in the regressors.  With white
-measurement noise the simulated pose at ``t_k`` depends on commands up to ``t_{k-1}`` only,
-so output error stays consistent on closed-loop logs (the commands depend on past noise).
+The model is ``wmr.plant`` itself: :func:`replay` drives ``wmr.plant.delayed`` and
+``wmr.plant.apply`` with the logged commands (``PARAMETERS`` and ``delay_steps``; slip as the
+plant defines it, §3.3: ``v_s = -slip v w``, signed, positive outward).  **Output error**: the
+residual is the measured pose minus the simulated one (heading wrapped), each channel divided by
+its noise level from second differences of the measured pose (``var(Δ²z) = 6 σ²``), minimised by
+``scipy.optimize.least_squares`` (Levenberg-Marquardt) over the continuous parameters; the delay
+by search over ``0 .. max_delay``.  Equation error on differenced poses would be biased, its
+intervals wrong (the noise on increments is MA(1) and sits in the regressors).  With white
+measurement noise the simulated pose at ``t_k`` depends on commands before ``t_k`` only, so the
+fit stays consistent on closed-loop logs, whose commands depend on past noise.
 
 Drift: **multiple shooting**.  The log is cut into segments of ``segment`` seconds (default
-:data:`SEGMENT_SECONDS`); each restarts the simulated pose from its own initial pose, three
-parameters fitted with the rest.  The lag state and the delay line run on across the cuts (they
-are fixed by the commands and cannot drift).  Why: an open-loop simulation of a plant that is
-not exactly this model (the MuJoCo robot, unmodelled effects) drifts away from the measured path
-over a long log, and a wrong initial guess makes a long horizon strongly non-convex; a segment
-long enough that a gain error accumulates into a drift well above the noise keeps nearly all the
-information (per segment it grows like its length cubed) while bounding the drift.
+:data:`SEGMENT_SECONDS`), each restarted from its own initial pose, fitted with the rest; the lag
+state and the delay line run on across the cuts (the commands fix them).  An open-loop
+simulation of a plant the model does not quite contain (the MuJoCo robot) drifts from the
+measured path over a long log; a cut bounds the drift to one segment, at the price of precision
+(a gain error shows as a drift growing with the segment's length).  On a 40 s closed-loop log of
+an exact model the intervals of 10 s segments are 1.0-3.6x those of one 40 s shot, of 5 s
+segments 1.1-8.8x.  From the nominal plant a long shot can end in a local minimum (one 40 s shot:
+s^2 = 7369), so every fit starts from a fit over :data:`WARM_SECONDS` segments.
 
-Intervals: Gauss-Newton, ``cov = s^2 (J^T J)^-1`` with the Jacobian of the weighted residuals
-at the optimum (central differences of :func:`replay`) and ``s^2`` the weighted residual
-variance (1 when the model explains the log down to the estimated noise); 95 % intervals
-``estimate +- 1.96 se``.  The delay's 95 % set: the delays whose profile ``Δχ² = (cost_d -
-cost_best) / s^2 <= 3.84`` (chi-square, 1 degree of freedom).
+Intervals: Gauss-Newton, ``cov = s^2 (J^T J)^-1`` with ``J`` the Jacobian of the weighted
+residuals at the optimum (central differences of :func:`replay`) and ``s^2`` the weighted
+residual variance (1: the model explains the log down to its noise; above 1 the residuals are
+not white and the intervals too narrow); 95 % intervals ``+-1.96 se``, conditional on the chosen
+delay.  The delay's 95 % set: the delays with ``Δχ² = (χ²_d - χ²_best) / s^2 <= 3.84``.  A lag
+whose optimum is its bound 0 is written as 0 with a one-sided upper limit.
 
-Identifiability, said not guessed: a parameter is *not identifiable from this log* (kept at its
-nominal value, left out of the written table, the reason in the report) when (1) the commands
-rule it out (:func:`structural`: ``w`` never nonzero, ``v`` never nonzero, ``v w`` never
-nonzero, a command that never changes), (2) its Jacobian column is zero at the optimum, or (3)
-it cannot be told from the other parameters: variance inflation factor ``1 / (1 - R_j^2)`` above
-:data:`VIF_LIMIT` (the column-normalised Jacobian is rank deficient).  Nothing identifiable:
-:class:`LogError` (exit 2).
+Identifiability, said not guessed: a parameter is *not identifiable from this log* -- left at its
+default, out of the written table, the reason in a comment -- when (1) the commands rule it out
+(:func:`structural`: ``w`` or ``v`` zero on every row, a command that never changes), (2) its
+Jacobian column is zero, (3) it cannot be told from the others (variance inflation above
+:data:`VIF_LIMIT`: the column-normalised Jacobian is rank deficient), or (4) its 95 % interval is
+wider than :data:`RESOLUTION`.  Each is dropped in turn and the fit (and the delay search)
+redone.  Nothing identifiable: :class:`LogError` (exit 2).
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -63,26 +61,10 @@ from wmr._jit import njit
 from wmr._settings import InputError, one_line
 from wmr.scenario import Plant
 
-__all__ = [
-    "LogError",
-    "PARAMETERS",
-    "NOMINAL",
-    "REQUIRED",
-    "OPTIONAL",
-    "MIN_ROWS",
-    "SEGMENT_SECONDS",
-    "MAX_DELAY",
-    "VIF_LIMIT",
-    "RESOLUTION",
-    "Log",
-    "read_log",
-    "structural",
-    "replay",
-    "Identification",
-    "identify",
-    "to_toml",
-    "report",
-]
+__all__ = ["LogError", "PARAMETERS", "NOMINAL", "REQUIRED", "OPTIONAL", "MIN_ROWS",
+           "SEGMENT_SECONDS", "WARM_SECONDS", "MAX_DELAY", "VIF_LIMIT", "RESOLUTION", "Log",
+           "read_log", "structural", "replay", "noise_level", "Identification", "identify",
+           "to_toml", "report"]  # fmt: skip
 
 #: The continuous parameters fitted (DESIGN §3.3), in this order, and their nominal values.
 PARAMETERS = ("v_gain", "w_gain", "v_from_w", "w_from_v", "actuator_tau", "slip")
@@ -95,8 +77,10 @@ REQUIRED = ("t", "v", "w", "x_meas", "y_meas", "theta_meas")
 OPTIONAL = ("dv", "dw")
 #: Fewest rows with a measured pose (0.5 s at 10 ms: enough residuals for 9 parameters).
 MIN_ROWS = 50
-#: Default length of a multiple-shooting segment [s].
-SEGMENT_SECONDS = 5.0
+#: Default length of a multiple-shooting segment [s], and of the segments of the first fit.
+SEGMENT_SECONDS, WARM_SECONDS = 10.0, 2.0
+#: At most this many segments (the dense Jacobian takes 24 (6 + 3 segments) bytes a row).
+MAX_SEGMENTS = 50
 #: Default largest delay searched [steps].
 MAX_DELAY = 10
 #: A variance inflation factor above this: the parameter cannot be told from the others.
@@ -114,8 +98,9 @@ CHI2_95 = 3.841458820694124
 DT_RTOL = 1e-6
 #: Starting lag [steps of dt]; lags below ``TAU_ZERO dt`` are written as 0 (no lag).
 TAU_START, TAU_ZERO = 2.0, 1e-3
-#: The fit integrates the lag with at most this many substeps (the plant's own rule, ``wmr.plant
-#: .substeps``, for lags down to dt/4; finer for the final replay and a written scenario).
+#: The fit integrates the lag with at most this many substeps: the plant's own rule
+#: (``wmr.plant.substeps``) for lags down to dt/4; below, a scenario with the written lag
+#: integrates more finely (the difference: below ``tau |Δv|`` per command change).
 MAX_FIT_SUBSTEPS = 8
 #: Central-difference steps of the Jacobian (relative to max(1, |p|)).
 FD_STEP = 1e-6
@@ -130,21 +115,10 @@ class LogError(InputError):
 
 @dataclass(frozen=True)
 class Log:
-    """A robot's log as :func:`identify` reads it (``n`` rows, ``t_k = t_0 + k dt``).
-
-    Attributes
-    ----------
-    source : str
-        Where it came from (for messages).
-    dt : float [s]
-        The constant sample period.
-    u : ndarray (n, 2) [m/s, rad/s]
-        The saturated command ``(v, w)`` sent at ``t_k``.
-    z : ndarray (n, 3) [m, m, rad]
-        The measured pose at ``t_k``.
-    dist : ndarray (n, 2) [m/s, rad/s]
-        The disturbance in force at ``t_k`` (zeros if the log has none).
-    """
+    """A robot's log as :func:`identify` reads it: ``n`` rows ``t_k = t_0 + k dt`` (``dt`` [s]),
+    the command ``u`` (n, 2) [m/s, rad/s] sent at ``t_k``, the measured pose ``z`` (n, 3)
+    [m, m, rad] and the disturbance ``dist`` (n, 2) in force (zeros if none); ``source`` names it
+    in messages."""
 
     source: str
     dt: float
@@ -155,16 +129,6 @@ class Log:
     @property
     def n(self) -> int:
         return len(self.u)
-
-
-def _cell(text: str, source: str, line: int, name: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise LogError(source, f"line {line} column {name}", text, "not a number") from None
-    if not math.isfinite(value):
-        raise LogError(source, f"line {line} column {name}", text, "not a finite number")
-    return value
 
 
 def read_log(path) -> Log:
@@ -197,7 +161,13 @@ def read_log(path) -> Log:
             raise LogError(source, f"line {line}", None,
                            f"has {len(row)} cells, the header {len(header)}")  # fmt: skip
         for c, (i, name) in enumerate(zip(index, names, strict=True)):
-            data[r, c] = _cell(row[i].strip(), source, line, name)
+            try:
+                data[r, c] = float(row[i])
+            except ValueError:
+                data[r, c] = math.nan
+            if not math.isfinite(data[r, c]):
+                raise LogError(source, f"line {line} column {name}", row[i].strip(),
+                               "not a finite number")  # fmt: skip
     if len(data) < MIN_ROWS:
         raise LogError(source, "(rows)", len(data),
                        f"too short: at least {MIN_ROWS} rows with a command and a measured "
@@ -205,18 +175,14 @@ def read_log(path) -> Log:
     col = {name: data[:, c] for c, name in enumerate(names)}
     t = col["t"]
     steps = np.diff(t)
-    bad = np.flatnonzero(steps <= 0)
-    if bad.size:
-        k = int(bad[0]) + 1
-        raise LogError(source, f"line {k + 2} column t", float(t[k]),
-                       f"not after the previous t = {float(t[k - 1])!r}")  # fmt: skip
     dt = float((t[-1] - t[0]) / (len(t) - 1))
-    off = np.flatnonzero(np.abs(steps - dt) > DT_RTOL * dt)
-    if off.size:
-        k = int(off[0]) + 1
-        raise LogError(source, f"line {k + 2} column t", float(t[k]),
-                       f"not uniformly sampled (step {float(steps[k - 1])!r}, mean {dt!r}): the "
-                       "plant's delay is in whole steps")  # fmt: skip
+    for bad, why in ((steps <= 0, "not after the previous t = {}"),
+                     (np.abs(steps - dt) > DT_RTOL * dt, "not uniformly sampled (the previous t = "
+                      "{}, mean step " + repr(dt) + "): the plant's delay is in whole steps")):
+        if np.any(bad):
+            k = int(np.argmax(bad)) + 1
+            raise LogError(source, f"line {k + 2} column t", float(t[k]),
+                           why.format(repr(float(t[k - 1]))))  # fmt: skip
     zeros = np.zeros(len(t))
     return Log(source=source, dt=dt, u=np.column_stack((col["v"], col["w"])),
                z=np.column_stack((col["x_meas"], col["y_meas"], col["theta_meas"])),
@@ -224,28 +190,19 @@ def read_log(path) -> Log:
 
 
 def structural(log: Log) -> dict[str, str]:
-    """Parameters the log's commands rule out, with the reason: ``{parameter: reason}``.
-
-    With the applied command ``c = u + dist``: ``w_gain`` and ``v_from_w`` multiply ``w``,
-    ``v_gain`` and ``w_from_v`` multiply ``v``: a factor zero on every row leaves the poses
-    independent of the parameter, whatever the others are.  (``slip`` multiplies the *applied*
-    ``v w``, which the coupling can make nonzero when the commanded ``v w`` is zero: the
-    Jacobian decides.)  A command that never changes moves the lag and the delay only through
-    the start from rest, i.e. through the assumption, not the data: both are ruled out.
-    """
-    c = log.u + log.dist
-    out = {}
-    if not np.any(c[:, 1]):
-        for p in ("w_gain", "v_from_w"):
-            out[p] = "w (+ dw) is zero on every row"
-    if not np.any(c[:, 0]):
-        for p in ("v_gain", "w_from_v"):
-            out[p] = "v (+ dv) is zero on every row"
+    """Parameters the log's commands rule out, ``{parameter: reason}``.  With ``c = u + dist``:
+    ``w_gain``, ``v_from_w`` multiply ``w`` and ``v_gain``, ``w_from_v`` multiply ``v``; a factor
+    zero on every row leaves the poses independent of them (``slip`` multiplies the *applied*
+    ``v w``, which the coupling can make nonzero: the Jacobian decides).  A command that never
+    changes informs the lag and the delay only through the assumed start from rest."""
+    c, out = log.u + log.dist, {}
+    for i, name, params in ((1, "w", ("w_gain", "v_from_w")), (0, "v", ("v_gain", "w_from_v"))):
+        if not np.any(c[:, i]):
+            out.update(dict.fromkeys(params, f"{name} (+ d{name}) is zero on every row"))
     if np.all(c == c[0]):
-        out["actuator_tau"] = "the command never changes (only the assumed start from rest would "\
-                              "inform the lag)"
-        out["delay_steps"] = "the command never changes (only the assumed start from rest would "\
-                             "inform the delay)"
+        for p, what in (("actuator_tau", "lag"), ("delay_steps", "delay")):
+            out[p] = f"the command never changes (only the assumed start from rest would " \
+                     f"inform the {what})"
     return out
 
 
@@ -253,24 +210,15 @@ def structural(log: Log) -> dict[str, str]:
 def _replay(u, dist, dt, table, at, ints, buffer, starts, q0, out):
     """The plant half of ``wmr.loop`` (delay -> disturbance -> ``wmr.plant.apply``) driven by
     logged commands; ``out[k]`` the pose at ``t_k``, reset to ``q0[j]`` at row ``starts[j]``."""
-    vel = np.zeros(2)
-    ua = np.zeros(2)
-    q = np.zeros(3)
-    j = 0
+    vel, ua, q, j = np.zeros(2), np.zeros(2), np.zeros(3), 0
     for k in range(u.shape[0]):
         if j < starts.size and k == starts[j]:
-            q[0] = q0[j, 0]
-            q[1] = q0[j, 1]
-            q[2] = q0[j, 2]
+            q[:] = q0[j]
             j += 1
-        out[k, 0] = q[0]
-        out[k, 1] = q[1]
-        out[k, 2] = q[2]
-        ua[0] = u[k, 0]
-        ua[1] = u[k, 1]
+        out[k, :] = q
+        ua[:] = u[k]
         plant.delayed(ua, ints, buffer)
-        ua[0] += dist[k, 0]
-        ua[1] += dist[k, 1]
+        ua += dist[k]
         plant.apply(k, dt, ua, q, table, at, ints, vel)
 
 
@@ -286,21 +234,16 @@ def _table(values, dt: float, max_substeps: int | None = None) -> np.ndarray:
 
 
 def replay(log: Log, values, delay: int, starts, q0, max_substeps: int | None = None):
-    """The poses ``wmr.plant`` gives over the log's commands: shape (n, 3) [m, m, rad].
-
-    A replay of the logged commands through the plant half of the step (``wmr.loop``: the
-    command delayed by ``delay`` steps, zeros before the first, the logged disturbance added,
-    ``wmr.plant.apply`` over each step), not a copy of the closed loop: no sensing, no law.
-    ``values`` (6,) are :data:`PARAMETERS`; the pose restarts from ``q0[j]`` (3,) at row
-    ``starts[j]`` (``starts[0] = 0``), the actual velocities and the delay line run on; the
-    robot starts at rest.
-    """
-    spec = Plant(delay_steps=int(delay))
-    _, at, ints, _, buffer = plant.arrays(spec, log.dt)
+    """The poses ``wmr.plant`` gives over the log's commands, (n, 3) [m, m, rad]: a replay of
+    the logged commands through the plant half of the step (``wmr.loop``: delayed by ``delay``
+    steps, zeros before the first; the logged disturbance added; ``wmr.plant.apply``), not a copy
+    of the closed loop (no sensing, no law).  ``values`` (6,) are :data:`PARAMETERS`; the pose
+    restarts from ``q0[j]`` (3,) at row ``starts[j]`` (``starts[0] = 0``) while the actual
+    velocities and the delay line run on; the robot starts at rest."""
+    _, at, ints, _, buffer = plant.arrays(Plant(delay_steps=int(delay)), log.dt)
     out = np.empty((log.n, 3))
-    _replay(log.u, log.dist, log.dt, _table(np.asarray(values, dtype=float), log.dt,
-                                            max_substeps),
-            at, ints, buffer, np.asarray(starts, dtype=np.int64),
+    table = _table(np.asarray(values, dtype=float), log.dt, max_substeps)
+    _replay(log.u, log.dist, log.dt, table, at, ints, buffer, np.asarray(starts, dtype=np.int64),
             np.asarray(q0, dtype=float).reshape(-1, 3), out)  # fmt: skip
     return out
 
@@ -366,8 +309,9 @@ class _Problem:
 
 
 def _segments(log: Log, segment: float) -> np.ndarray:
-    """First rows of the shooting segments of ``segment`` seconds (a short last one merged)."""
-    length = max(1, round(segment / log.dt))
+    """First rows of the shooting segments of ``segment`` seconds (a short last one merged),
+    at most :data:`MAX_SEGMENTS` (longer ones on a long log: the Jacobian is dense)."""
+    length = max(1, round(segment / log.dt), math.ceil(log.n / MAX_SEGMENTS))
     starts = np.arange(0, log.n, length)
     if len(starts) > 1 and log.n - starts[-1] < length / 2:
         starts = starts[:-1]
@@ -383,11 +327,21 @@ def _fit(problem: _Problem, x0: np.ndarray):
                          max_nfev=200)  # fmt: skip
 
 
-def _start(problem: _Problem) -> np.ndarray:
-    """Nominal parameters (the lag at ``TAU_START dt``), each segment from its measured pose."""
+def _solve(problem: _Problem):
+    """Fit ``problem`` from the nominal parameters (the lag at ``TAU_START dt``), each segment
+    from its measured pose -- through a first fit over :data:`WARM_SECONDS` segments when the
+    problem's are longer (short shots stay near the measured path from a poor start, so the
+    long ones start near their optimum; a single 40 s shot from the nominal plant ends in a
+    local minimum)."""
+    log, free = problem.log, problem.free
     values = np.array([NOMINAL[p] for p in PARAMETERS])
-    values[_TAU] = TAU_START * problem.log.dt
-    return np.concatenate((values[problem.free], problem.log.z[problem.starts].ravel()))
+    values[_TAU] = TAU_START * log.dt
+    short = _segments(log, WARM_SECONDS)
+    if len(short) > len(problem.starts):
+        warm = dataclasses.replace(problem, starts=short)
+        res = _fit(warm, np.concatenate((values[free], log.z[short].ravel())))
+        values = warm.unpack(res.x)[0]
+    return _fit(problem, np.concatenate((values[free], log.z[problem.starts].ravel())))
 
 
 #: When parameters cannot be told apart, the first of this order is dropped (the gains last).
@@ -455,6 +409,7 @@ class Identification:
     max_delay: int
     values: dict[str, float]
     se: dict[str, float]
+    covariance: np.ndarray
     not_identifiable: dict[str, str]
     delay: int
     delay_set: tuple[int, ...]
@@ -467,7 +422,6 @@ class Identification:
     initial_poses: np.ndarray
     fitted: np.ndarray = field(repr=False)
     lag_at_bound: bool = False
-    covariance: np.ndarray | None = None
 
     def interval(self, name: str) -> tuple[float, float]:
         """The 95 % interval of parameter ``name`` (the lag's clipped at its bound 0)."""
@@ -504,14 +458,14 @@ def identify(log: Log, max_delay: int = MAX_DELAY,
         chi2, fits = {}, {}
         for d in delays:
             problem = _Problem(log, d, free, starts, sigma)
-            fits[d] = (problem, _fit(problem, _start(problem)))
+            fits[d] = (problem, _solve(problem))
             chi2[d] = 2.0 * fits[d][1].cost
         best = min(chi2, key=chi2.get)
         problem, res = fits[best]
         at_bound = bool(free[_TAU]) and problem.unpack(res.x)[0][_TAU] < TAU_ZERO * log.dt
         if at_bound:  # the lag at its bound 0: refit without it (the search keeps it free)
             problem = _Problem(log, best, free & (np.arange(len(free)) != _TAU), starts, sigma)
-            res = _fit(problem, _start(problem))
+            res = _solve(problem)
             chi2[best] = 2.0 * res.cost
         J = problem.jacobian(res.x)
         drop, vif = _unresolved(J, problem.free, chi2[best] / (J.shape[0] - J.shape[1]))
@@ -527,13 +481,11 @@ def identify(log: Log, max_delay: int = MAX_DELAY,
         J = np.column_stack((J, _lag_column(problem, values, q0)))
         names.append("actuator_tau")
     s2 = chi2[best] / (3 * log.n - J.shape[1])
-    cov = s2 * np.linalg.pinv(J.T @ J)
     columns = [*range(int(free.sum())), *([J.shape[1] - 1] if at_bound else [])]
     where = [PARAMETERS.index(name) for name in names]
     covariance = np.full((len(PARAMETERS), len(PARAMETERS)), np.nan)
-    covariance[np.ix_(where, where)] = cov[np.ix_(columns, columns)]
-    se = {name: math.sqrt(max(covariance[i, i], 0.0)) if i in where else math.nan
-          for i, name in enumerate(PARAMETERS)}  # fmt: skip
+    covariance[np.ix_(where, where)] = (s2 * np.linalg.pinv(J.T @ J))[np.ix_(columns, columns)]
+    se = dict(zip(PARAMETERS, np.sqrt(np.diag(covariance)).tolist(), strict=True))
     profile = {d: (c - chi2[best]) / s2 for d, c in chi2.items()}
     delay_set = tuple(d for d in delays if profile[d] <= CHI2_95)
     if "delay_steps" in ruled:
@@ -542,8 +494,7 @@ def identify(log: Log, max_delay: int = MAX_DELAY,
         reasons["delay_steps"] = (f"every delay searched (0..{max_delay}) fits alike "
                                   f"(Δχ² <= {CHI2_95:.2f})")  # fmt: skip
     fitted = problem.simulate(res.x)
-    r = log.z - fitted
-    r[:, 2] = _wrap(r[:, 2])
+    r = (problem.residual(res.x) * np.tile(sigma, log.n)).reshape(-1, 3)
     return Identification(
         source=log.source, n=log.n, dt=log.dt, segment=segment, max_delay=max_delay,
         values={k: float(v) for k, v in zip(PARAMETERS, values, strict=True)}, se=se,
@@ -563,12 +514,11 @@ def _check_any(log: Log, reasons: dict[str, str]) -> None:
 
 def _lag_column(problem: _Problem, values: np.ndarray, q0: np.ndarray) -> np.ndarray:
     """The weighted residual's sensitivity to the lag at 0, a secant over ``[0, dt/4]`` (3 n,)."""
-    lagged = values.copy()
-    lagged[_TAU] = 0.25 * problem.log.dt
-    log = problem.log
-    d = (replay(log, values, problem.delay, problem.starts, q0, problem.max_substeps)
-         - replay(log, lagged, problem.delay, problem.starts, q0, problem.max_substeps))
-    return (d / (0.25 * log.dt) / problem.sigma).ravel()
+    h, lagged = 0.25 * problem.log.dt, values.copy()
+    lagged[_TAU] = h
+    sim = [replay(problem.log, v, problem.delay, problem.starts, q0, problem.max_substeps)
+           for v in (values, lagged)]  # fmt: skip
+    return ((sim[0] - sim[1]) / h / problem.sigma).ravel()
 
 
 def _fmt(x: float) -> str:
@@ -576,34 +526,34 @@ def _fmt(x: float) -> str:
 
 
 def _notes(ident: Identification) -> dict[str, str]:
-    """One comment per parameter of the written table: its interval, or why it is left out."""
-    out = {}
+    """One comment per parameter (its interval, or why it is left out), and under ``""`` the
+    caveat when the delay is not exact (the intervals hold given the chosen one)."""
+    out, why = {"": ""}, ident.not_identifiable
+    delays = "{" + ", ".join(map(str, ident.delay_set)) + "}"
     for name in PARAMETERS:
-        if name in ident.not_identifiable:
-            out[name] = f"not identifiable from this log: {ident.not_identifiable[name]}"
-        elif name == "actuator_tau" and ident.lag_at_bound:
-            out[name] = (f"at its bound 0 (no lag found); 95 % upper limit "
-                         f"{_fmt(ident.interval(name)[1])} s")  # fmt: skip
-        else:
-            lo, hi = ident.interval(name)
-            out[name] = f"95 % interval [{_fmt(lo)}, {_fmt(hi)}] {UNITS[name]}"
-    if "delay_steps" in ident.not_identifiable:
-        out["delay_steps"] = f"not identifiable from this log: {ident.not_identifiable['delay_steps']}"
-    else:
-        searched = f"searched 0..{ident.max_delay}"
-        exact = "exact" if len(ident.delay_set) == 1 else "not exact"
-        out["delay_steps"] = (f"{searched}; 95 % set {{{', '.join(map(str, ident.delay_set))}}} "
-                              f"({exact})" + ("; at the edge of the search: raise --max-delay"
-                                              if ident.delay == ident.max_delay else ""))  # fmt: skip
+        lo, hi = ident.interval(name)
+        out[name] = (f"not identifiable from this log: {why[name]}" if name in why else
+                     f"at its bound 0 (no lag found); 95 % upper limit {_fmt(hi)} s"
+                     if name == "actuator_tau" and ident.lag_at_bound else
+                     f"95 % interval [{_fmt(lo)}, {_fmt(hi)}] {UNITS[name]}")  # fmt: skip
+    if "delay_steps" in why:
+        out["delay_steps"] = f"not identifiable from this log: {why['delay_steps']}; the fit's"
+        return out
+    exact = len(ident.delay_set) == 1
+    edge = "; at the edge of the search: raise --max-delay" if ident.delay == ident.max_delay \
+        else ""
+    out["delay_steps"] = (f"searched 0..{ident.max_delay}; 95 % set {delays} "
+                          f"({'exact' if exact else 'not exact'}){edge}")  # fmt: skip
+    if not exact:
+        out[""] = (f"the intervals hold given delay_steps = {ident.delay}; the delay is not "
+                   f"exact (95 % set {delays})")  # fmt: skip
     return out
 
 
-def _conditional(ident: Identification) -> list[str]:
-    """A comment line when the delay is not exact: the intervals hold given the chosen one."""
-    if "delay_steps" in ident.not_identifiable or len(ident.delay_set) <= 1:
-        return []
-    return [f"# the intervals hold given delay_steps = {ident.delay}; the delay is not exact "
-            f"(95 % set {{{', '.join(map(str, ident.delay_set))}}})"]
+def _residual_line(ident: Identification) -> str:
+    rms = ", ".join(f"{c} {_fmt(v)}" for c, v in zip(("x", "y", "theta"), ident.rms, strict=True))
+    return (f"residual RMS {rms} (m, m, rad); weighted residual variance s^2 = {ident.s2:.4g} "
+            "(1: the model explains the log down to its noise)")  # fmt: skip
 
 
 def to_toml(ident: Identification) -> str:
@@ -611,18 +561,15 @@ def to_toml(ident: Identification) -> str:
     it to a scenario without a ``[plant]``).  Parameters the log cannot identify are left out
     (their defaults apply), each with a comment saying why; the others carry their interval."""
     notes = _notes(ident)
-    rms = ", ".join(f"{c} {_fmt(v)}" for c, v in zip(("x", "y", "theta"), ident.rms, strict=True))
     lines = [f"# [plant] fitted by `wmr identify` to {one_line(ident.source)}: {ident.n} rows of "
              f"dt = {ident.dt:g} s, output error over {len(ident.starts)} segment(s)",
-             f"# residual RMS {rms} (m, m, rad); weighted residual variance s^2 = "
-             f"{ident.s2:.4g} (1: the model explains the log down to its noise)",
-             *_conditional(ident), "[plant]", 'model = "kinematic"']  # fmt: skip
+             f"# {_residual_line(ident)}", *([f"# {notes['']}"] if notes[""] else []),
+             "[plant]", 'model = "kinematic"']  # fmt: skip
     for name in (*PARAMETERS[:-1], "delay_steps", PARAMETERS[-1]):
-        if name in ident.not_identifiable:
+        if name in ident.not_identifiable and name != "delay_steps":  # the fit's delay: written
             lines.append(f"# {name}: {notes[name]}")
             continue
-        value = ident.delay if name == "delay_steps" else (
-            0.0 if name == "actuator_tau" and ident.lag_at_bound else ident.values[name])
+        value = ident.delay if name == "delay_steps" else ident.values[name]
         lines.append(f"{f'{name} = {value!r}':<31} # {notes[name]}")
     return "\n".join(lines) + "\n"
 
@@ -634,18 +581,17 @@ def report(ident: Identification) -> str:
     lines = [f"{one_line(ident.source)}: {ident.n} rows, dt = {ident.dt:g} s, "
              f"{len(ident.starts)} shooting segment(s) of {ident.segment:g} s",
              f"{'parameter':<14}{'estimate':>12}{'std error':>12}  note"]  # fmt: skip
-    for name in PARAMETERS:
+    for name in (*PARAMETERS, "delay_steps"):
         if name in ident.not_identifiable:
-            lines.append(f"{name:<14}{'-':>12}{'-':>12}  {notes[name]}")
+            value = se = "-"
+        elif name == "delay_steps":
+            value, se = str(ident.delay), ""
         else:
-            lines.append(f"{name:<14}{_fmt(ident.values[name]):>12}{_fmt(ident.se[name]):>12}"
-                         f"  {notes[name]}")  # fmt: skip
-    delay = "-" if "delay_steps" in ident.not_identifiable else str(ident.delay)
-    lines.append(f"{'delay_steps':<14}{delay:>12}{'':>12}  {notes['delay_steps']}")
+            value, se = _fmt(ident.values[name]), _fmt(ident.se[name])
+        lines.append(f"{name:<14}{value:>12}{se:>12}  {notes[name]}")
     prof = ", ".join(f"{d}: {v:.1f}" for d, v in ident.profile.items())
-    lines.append(f"delay profile (Δχ² per delay): {prof}")
-    rms = ", ".join(f"{c} {_fmt(v)}" for c, v in zip(("x", "y", "theta"), ident.rms, strict=True))
     noise = ", ".join(_fmt(v) for v in ident.sigma)
-    lines.append(f"residual RMS {rms} (m, m, rad); noise level from second differences {noise};"
-                 f" s^2 = {ident.s2:.4g}")  # fmt: skip
-    return "\n".join([*lines, *(c[2:] for c in _conditional(ident))])
+    lines += [f"delay profile (Δχ² per delay): {prof}", _residual_line(ident),
+              f"noise level from second differences: {noise} (m, m, rad)",
+              *([notes[""]] if notes[""] else [])]  # fmt: skip
+    return "\n".join(lines)
