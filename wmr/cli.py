@@ -346,6 +346,28 @@ def cmd_settings(args) -> int:
     return 0
 
 
+def cmd_identify(args) -> int:
+    from wmr import identify
+    from wmr.io import atomic_write_text
+
+    if args.out is not None and Path(args.out).is_dir():
+        raise UsageError(f"--out {args.out!r}: is a directory")
+    options = {k: v for k, v in (("max_delay", args.max_delay), ("segment", args.segment))
+               if v is not None}  # fmt: skip
+    try:
+        found = identify.identify(identify.read_log(args.log), **options)
+    except identify.LogError as err:
+        raise UsageError(str(err)) from None
+    print(identify.report(found))
+    text = identify.to_toml(found)
+    if args.out is None:
+        print(text, end="")
+    else:
+        atomic_write_text(args.out, text)
+        print(f"wrote {args.out}")
+    return 0
+
+
 def _plugin_option(parser) -> None:
     parser.add_argument("--plugin", action="append", metavar="PATH_OR_MODULE", default=[],
                         help="load the controllers of a plugin (a .py file or a module with "
@@ -425,6 +447,16 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--out", default="paper", help="output folder (default: paper)")
     bench.add_argument("--workers", type=_positive_int, default=None)
     bench.set_defaults(func=cmd_bench)
+
+    idf = sub.add_parser("identify", help="fit the [plant] of DESIGN §3.3 to a robot's log "
+                         "(commands and measured poses; wmr run's trajectory CSV)")  # fmt: skip
+    idf.add_argument("log", help="CSV with t, v, w, x_meas, y_meas, theta_meas (dv, dw optional)")
+    idf.add_argument("--out", default=None, help="write the [plant] table here (default: print)")
+    idf.add_argument("--max-delay", type=_nonnegative_int, default=None,
+                     help="largest delay searched, in steps (default 10)")  # fmt: skip
+    idf.add_argument("--segment", type=_positive_float, default=None,
+                     help="multiple-shooting segment length [s] (default 10)")  # fmt: skip
+    idf.set_defaults(func=cmd_identify)
 
     cache = sub.add_parser("cache", help="where wmr's compiled kernels are cached (--prune: "
                            "remove those of earlier versions of the source)")  # fmt: skip
