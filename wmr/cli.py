@@ -1,5 +1,5 @@
-"""Command line: ``wmr run | reproduce | report | analyze | bench | sweep | settings | cache``
-(§3.2, §3.5, §3.8).
+"""Command line: ``wmr run | reproduce | report | analyze | bench | sweep | settings | cache |
+identify`` (DESIGN §3.2, §3.5, §3.8).
 
 Exit codes: 0 success; 2 bad input (one line ``error: ...`` on stderr naming the file, key and
 value; nothing written); 1 an unexpected failure.  A diverged run is a result, not an error.
