@@ -524,3 +524,29 @@ period = 40.0
 [noise]
 pose_std = [0.01, 0.01, 0.01]
 """
+
+
+def rows_on_every_engine(spec, folder, home, before_workers=None):
+    """Run the sweep ``spec`` into ``folder/{serial,local,remote}``: serially, on a 2-worker
+    LocalCluster, and on a scheduler with two worker processes started on 127.0.0.1 in ``home``
+    (a folder that holds none of the spec's files); every run ok and the three stores' rows equal.
+    ``before_workers`` runs after the serial sweep (e.g. to remove a file the workers must not
+    need)."""
+    from wmr import study, sweep
+
+    def rows(out):
+        df = sweep.read_rows(out).to_pandas().sort_values("job_id").reset_index(drop=True)
+        assert set(df.status) == {"ok"}, df.error.tolist()
+        return df
+
+    sweep.run_sweep(spec, folder / "serial", workers=1, progress=False)
+    serial = rows(folder / "serial")
+    if before_workers is not None:
+        before_workers()
+    sweep.run_sweep(spec, folder / "local", workers=2, progress=False, batch_seconds=0.001)
+    assert rows(folder / "local").equals(serial)
+    with study.LoopbackCluster(home / "cluster", workers=2, timeout=240) as c:
+        sweep.run_sweep(spec, folder / "remote", scheduler=c.address, progress=False,
+                        batch_seconds=0.001)  # fmt: skip
+    assert rows(folder / "remote").equals(serial)
+    return serial

@@ -11,10 +11,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cases import rows_on_every_engine
 from numpy.testing import assert_array_equal
 from test_mujoco_robot import USER_MJCF
 
-from wmr import cli, study, sweep
+from wmr import cli, sweep
 from wmr import scenario as scn
 from wmr.mujoco_robot import MujocoRobot
 from wmr.sim import simulate
@@ -142,21 +143,8 @@ def test_a_users_robot_sweeps_on_every_engine_with_the_serial_rows(tmp_path_fact
     (folder / "spec.toml").write_text(SPEC)
     spec = sweep.load_spec(folder / "spec.toml")
 
-    def rows(out):
-        df = sweep.read_rows(out).to_pandas().sort_values("job_id").reset_index(drop=True)
-        assert set(df.status) == {"ok"}, df.error.tolist()
-        return df
-
-    sweep.run_sweep(spec, folder / "serial", workers=1, progress=False)
-    serial = rows(folder / "serial")
-    (folder / "me.xml").unlink()  # the workers need no file: the scenario holds the MJCF
-    sweep.run_sweep(spec, folder / "local", workers=2, progress=False, batch_seconds=0.001)
-    assert rows(folder / "local").equals(serial)
-    home = tmp_path_factory.mktemp("elsewhere")
-    with study.LoopbackCluster(home / "cluster", workers=2, timeout=240) as c:
-        sweep.run_sweep(spec, folder / "remote", scheduler=c.address, progress=False,
-                        batch_seconds=0.001)  # fmt: skip
-    assert rows(folder / "remote").equals(serial)
+    rows_on_every_engine(spec, folder, tmp_path_factory.mktemp("elsewhere"),
+                         before_workers=lambda: (folder / "me.xml").unlink())  # fmt: skip
 
 
 MUJOCO_SHIPPED = sorted(p.stem for p in (Path(scn.builtin("lemniscate")).parent / "mujoco")

@@ -17,18 +17,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
+from test_extending import _example as example
 
 from wmr import cli, controllers, plugins
 from wmr import scenario as scn
 from wmr.sim import simulate
-
-DOC = Path(__file__).resolve().parents[1] / "docs" / "extending.md"
-
-
-def example(name: str) -> str:
-    m = re.search(rf"<!-- example: {name} -->\n```python\n(.*?)```", DOC.read_text(), re.S)
-    assert m, f"no example {name!r} in {DOC}"
-    return m.group(1)
 
 
 @pytest.fixture
@@ -217,9 +210,9 @@ def test_a_plugin_sweeps_on_every_engine_with_the_serial_rows(tmp_path_factory, 
     """``plugins = [...]`` in a spec: serial, a 2-worker LocalCluster, and a scheduler with two
     worker processes started on 127.0.0.1 in a folder that does not hold the plugin (the file's
     content travels to the workers: ``wmr.engine.plugins_dask``) give the same rows."""
-    from cases import SHORT_LEMNISCATE
+    from cases import SHORT_LEMNISCATE, rows_on_every_engine
 
-    from wmr import study, sweep
+    from wmr import sweep
 
     folder = tmp_path_factory.mktemp("plugin-sweep")
     (folder / "my_trackers.py").write_text(example("plugin-file"))
@@ -228,21 +221,8 @@ def test_a_plugin_sweeps_on_every_engine_with_the_serial_rows(tmp_path_factory, 
     spec = sweep.load_spec(folder / "spec.toml")
     assert "simple-python" in controllers.REGISTRY
 
-    def rows(out):
-        df = sweep.read_rows(out).to_pandas().sort_values("job_id").reset_index(drop=True)
-        assert set(df.status) == {"ok"}, df.error.tolist()
-        return df.drop(columns=[c for c in df.columns if c in ("error",)])
-
-    sweep.run_sweep(spec, folder / "serial", workers=1, progress=False)
-    serial = rows(folder / "serial")
-    assert len(serial) == 3 * 2 * 2
-    sweep.run_sweep(spec, folder / "local", workers=2, progress=False, batch_seconds=0.001)
-    assert rows(folder / "local").equals(serial)
-    workers_home = tmp_path_factory.mktemp("elsewhere")
-    with study.LoopbackCluster(workers_home / "cluster", workers=2, timeout=240) as c:
-        sweep.run_sweep(spec, folder / "remote", scheduler=c.address, progress=False,
-                        batch_seconds=0.001)  # fmt: skip
-    assert rows(folder / "remote").equals(serial)
+    rows_on_every_engine(spec, folder, tmp_path_factory.mktemp("elsewhere"))
+    assert len(sweep.read_rows(folder / "serial")) == 3 * 2 * 2
 
 
 def test_a_bad_plugin_in_a_spec_is_a_sweep_error(tmp_path, clean_registry):

@@ -226,7 +226,7 @@ def _table(values, dt: float, max_substeps: int | None = None) -> np.ndarray:
     """The one-row parameter table of ``wmr.plant`` with ``values`` (6,) of :data:`PARAMETERS`
     (the other columns at ``wmr.scenario.Plant``'s defaults, substeps by ``wmr.plant.substeps``,
     capped at ``max_substeps``)."""
-    row = np.array(Plant().row(), dtype=float)
+    row = np.array([*Plant().row(), 0.0], dtype=float)  # the columns, then substeps (plant.arrays)
     row[_COLS] = values
     n = plant.substeps(row, plant.KINEMATIC, dt)
     row[_N_SUB] = n if max_substeps is None else min(n, max_substeps)
