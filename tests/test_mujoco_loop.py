@@ -87,9 +87,18 @@ def test_the_loop_drives_the_robot_as_the_contract_says():
     assert simulate(sc, "backstepping", 3).rmse == r.rmse  # deterministic
 
 
-def test_a_payload_change_takes_effect_at_its_time():
-    sc = scn.loads(SHIPPED)
-    light = scn.loads(SHIPPED.replace("mass = 13.0", "mass = 10.0"))
+@pytest.mark.parametrize(("key", "away", "default"), [
+    ("mass", "13.0", "10.0"), ("com_offset", "[0.05, 0.02]", "[0.0, 0.0]"),
+    ("friction", "0.3", "0.8"),
+], ids=["mass", "com_offset", "friction"])  # fmt: skip
+def test_each_changeable_key_takes_effect_at_its_time(key, away, default):
+    """Every key a [[plant.change]] may set on the MuJoCo robot (plantspec.MODELS["mujoco"]):
+    the same run up to the change, another after (``default``: the value in force before)."""
+    from wmr import plantspec
+
+    assert set(plantspec.changeable("mujoco")) >= {"mass", "com_offset", "friction"}
+    sc = scn.loads(SHIPPED.replace("mass = 13.0", f"{key} = {away}"))
+    light = scn.loads(SHIPPED.replace("mass = 13.0", f"{key} = {default}"))
     a, b = simulate(sc, "pid", 0), simulate(light, "pid", 0)
     k = round(1.2 / sc.dt)
     assert_array_equal(a.q[: k + 1], b.q[: k + 1])
