@@ -13,6 +13,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import math
+import os
 
 import numpy as np
 import pytest
@@ -189,7 +190,9 @@ COVERAGE_ALPHA = 5e-4
 
 @pytest.mark.parametrize("seeds", [
     pytest.param(range(20), id="20-seeds"),
-    pytest.param(range(20, 100), id="80-more-seeds", marks=pytest.mark.slow),
+    # 43 s: run with WMR_LONG_TESTS=1 (measured: 461 of 480 intervals covered the truth)
+    pytest.param(range(20, 100), id="80-more-seeds", marks=pytest.mark.skipif(
+        not os.environ.get("WMR_LONG_TESTS"), reason="long: set WMR_LONG_TESTS=1")),
 ])  # fmt: skip
 def test_intervals_cover_the_truth(tmp_path, seeds):
     """Over 20 (slow: 80 more) seeds of 10 s closed-loop logs, each parameter's 95 % interval
