@@ -324,8 +324,8 @@ def test_a_prediction_step_that_fits_dt_loads():
 #: The circle of the tracking-to-tolerance check: 0.1 m and 0.1 rad off its start, no noise.
 _CIRCLE = {"radius": 1.0, "period": 20.0}
 #: Weights of that check: a lighter input penalty and a heavier terminal cost than the defaults
-#: (which settle in ~60 s with h = dt, N = 20: a 0.2 s horizon), so the decay reaches rounding
-#: within the 30 s run (measured: 1e-1 -> 7e-12 m by 20 s, 2e-16 m from 30 s).
+#: (with which the error falls only ~6x per 10 s at h = dt, N = 20: a 0.2 s horizon), so the decay
+#: reaches rounding within the 30 s run (measured: 1e-1 -> 7e-12 m by 20 s, 2e-16 m at 30 s).
 _FAST = {"weights": (10.0, 1.0, 0.001, 0.001), "terminal_weight": 100.0}
 #: The circle's error from t = 25 s on [m, rad]: the converged solvers' default tolerance
 #: (1e-10) on the KKT conditions, here on the pose; RTI's fixed point is the exact optimum, so the
@@ -370,8 +370,10 @@ def test_limits_hold_along_a_closed_loop_run(lemniscate):
 
 #: The real-time iteration's first command against the converged one along a run (issue 21: "for
 #: RTI, the gap over a run is measured and reported").  Measured on the lemniscate, seed 0, noise,
-#: 10 s, every 4th step: median 1.1e-3 m/s / 1.6e-3 rad/s, 95th percentile 1.0e-2 / 1.3e-2,
-#: largest in the first second's transient.  Bounds: the module docstring's figures x 3.
+#: 10 s, every 4th step: median 2.2e-3 m/s / 2.5e-3 rad/s, 95th percentile 1.3e-2 / 1.6e-2, the
+#: same in every stretch of the run (the measurement noise moves the optimum by about one
+#: Gauss-Newton step each sample); the largest, 0.11 m/s / 1.03 rad/s, at k = 0 (the cold start
+#: from the reference's inputs, 0.7 m off).  Bounds: about 2.5x the measured figures.
 RTI_GAP_MEDIAN, RTI_GAP_P95 = 5e-3, 4e-2
 
 
@@ -379,8 +381,8 @@ def test_rti_gap_to_converged_ipopt_along_a_run(lemniscate):
     """Replaying the run's pose estimates through a fresh controller gives the run's commands
     bit for bit (the loop hands ``step`` its pose and reference in order); at every 4th step the
     first command is compared with ipopt converged on the same problem (same pose, preview,
-    warm start).  The gap shrinks after the transient (a one-step-per-sample iteration tracks
-    the moving optimum)."""
+    warm start); the gap's median and 95th percentile stay within the measured figures, and the
+    first step (no warm start) is the worst."""
     sc = dataclasses.replace(lemniscate, duration=10.0)
     r = simulate(sc, "nmpc", 0)
     c = nmpc.make(nmpc.Settings(), sc)
@@ -397,8 +399,7 @@ def test_rti_gap_to_converged_ipopt_along_a_run(lemniscate):
     gaps = np.array(gaps)
     med, p95 = np.median(gaps, axis=0), np.percentile(gaps, 95, axis=0)
     assert np.all(med < RTI_GAP_MEDIAN) and np.all(p95 < RTI_GAP_P95), (med, p95)
-    late = gaps[len(gaps) // 2 :]
-    assert np.median(late) <= np.median(gaps[: len(gaps) // 10])
+    assert np.all(gaps[0] == gaps.max(axis=0))
 
 
 def test_a_forced_solver_failure_is_the_runs_stated_cause(lemniscate):
