@@ -473,7 +473,7 @@ def notes(rec: dict) -> list[str]:
         "median of the paired CPU-time ratios.",
         "The loop is compiled once per controller (wmr.loop.kernel) and cached on disk: "
         "advance_cache counts the loads from the cache (hits) and compilations (misses) of this "
-        "process.", _py_controller_bench.NOTE,
+        "process.", *([_py_controller_bench.NOTE] if rec.get("python_controllers") else []),
     ]
 
 
