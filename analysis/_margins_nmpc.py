@@ -1,5 +1,5 @@
-"""Margins of nmpc through its local linear feedback (issue 21 item 3, the margins study's nmpc row;
-not yet wired into ``analysis/margins.py``'s record).
+"""Margins of nmpc through its local linear feedback (issue 21 item 3: the margins study's nmpc
+rows, ``record["nmpc"]`` of ``analysis/margins.py``).
 
 The nonlinear MPC's policy ``u = kappa(e)`` (the first command of the converged solution of
 (M1)-(M2), ``wmr.controllers.nmpc``, at the pose whose corrected error (eq. 6) to the reference
@@ -24,14 +24,20 @@ import numpy as np
 
 from wmr.loops import OperatingPoint, constant_reference_scenario, error_plant, loop_transfer
 
-__all__ = ["FD_STEP", "ORACLE_TOL", "pose_at_error", "policy", "policy_gain", "nmpc_loops",
-           "margins"]  # fmt: skip
+__all__ = ["FD_STEP", "ORACLE_TOL", "NOTE", "pose_at_error", "policy", "policy_gain",
+           "nmpc_loops", "margins", "table_lines"]  # fmt: skip
 
 #: Central-difference step in the error [m, m, rad]: truncation O(h^2) ~ 1e-10 against the
 #: solver's 1e-12 / h = 1e-7 (the two balance near 1e-4..1e-5; tests compare the two steps).
 FD_STEP = 1e-5
 #: ipopt's tolerance for the policy (its KKT error; the command is accurate to about this).
 ORACLE_TOL = 1e-12
+#: The heading of the margins table's NMPC block.
+NOTE = ("NMPC (not in the paper; issue 21): its converged policy (ipopt to 1e-12, default "
+        "settings) linearised at zero error by central differences (step 1e-5) on each operating "
+        "point's constant reference, a static gain du/de (2 x 3) in BSC's place; the real-time "
+        "iteration it runs by default is a dynamic system whose loop near the reference follows "
+        "this one (tests/test_margins_nmpc.py).")
 
 
 def pose_at_error(ref_row, e) -> np.ndarray:
@@ -100,3 +106,25 @@ def margins(ops, settings=None) -> dict:
                          "spectral_radius": res["spectral_radius"],
                          **{ch: res[ch].to_json() for ch in ("v", "w")}}  # fmt: skip
     return out
+
+
+def table_lines(record: dict) -> list[str]:
+    """The margins table's NMPC block (empty when the record has no ``"nmpc"`` entry)."""
+    from analysis import common
+
+    rec = record.get("nmpc")
+    if not rec:
+        return []
+
+    def cell(m):
+        return " / ".join(common.fmt(m[k], d) if not isinstance(m[k], str) else m[k]
+                          for k, d in (("gain_margin_db", 1), ("phase_margin_deg", 1),
+                                       ("disk_margin", 3)))  # fmt: skip
+
+    rows = [(label, f"{r['v_r']:.3f}", f"{r['w_r']:.3f}", cell(r["v"]), cell(r["w"]),
+             f"{r['spectral_radius']:.5f}",
+             "; ".join(", ".join(f"{x:.3f}" for x in row) for row in r["gain"]))
+            for label, r in rec.items()]  # fmt: skip
+    return ["", NOTE + "  GM upper dB / PM deg / alpha per loop; du/de rows v; w:", "",
+            *common.md_table(("operating point", "v_r", "w_r", "NMPC v", "NMPC w", "max abs(z)",
+                              "du/de"), rows)]  # fmt: skip
