@@ -24,6 +24,9 @@ Measured
   serial, after warm-up;
 - ``monte_carlo_1000_s``: 1,000 ``iapid-nn-dekf`` lemniscate runs (seeds 0..999) on ``workers``
   processes with a progress bar (``null`` with ``quick``), rows checked equal to the serial path;
+- ``python_controllers``: the Python-level controllers (``nmpc``) on a few runs of their own, the
+  loop's cost per step and the distribution of the controller's own step
+  (``analysis._py_controller_bench``);
 - cost against the number of weights (hidden units) and against the number of workers;
 - peak resident memory (``ru_maxrss`` of this process and of its children).
 
@@ -51,7 +54,7 @@ import time
 
 import numpy as np
 
-from analysis import _bench, _floor, _sweep_bench, common
+from analysis import _bench, _floor, _py_controller_bench, _sweep_bench, common
 from analysis._bench import clocks, per_step, steps_done
 from wmr import controllers, loop, sim
 from wmr import scenario as scn
@@ -71,6 +74,7 @@ TARGETS = {
     "plant_ratio_max": 1.3,  # step with lag, delay and slip / ideal step (issue 12)
     "sweep_efficiency_min": 0.9,  # sweep runs/s on 2 workers / (2 x serial), issue 13
     "large_sweep_runs_min": 100_000,
+    "nmpc_step_median_ms_max": 0.5,  # issue 21: nmpc's own step, median
 }
 #: The targets :func:`check` asserts (ratios and correctness); absolute wall-time misses are
 #: recorded only.
@@ -110,6 +114,7 @@ def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
     rec.update(_warmup(lem, prob))
     costs, over_floor = _step_costs(lem, prob, repeats)
     rec.update(costs)
+    rec["python_controllers"] = _py_controller_bench.measure(lem, quick)
     rec["warmup_compile_s"] = {k: max(0.0, rec["warmup_s"][k] - v / _US * lem.n_steps)
                                for k, v in rec["us_per_step"].items()}  # fmt: skip
     rss = {"after_warmup_and_step_timings": _bench.rss_mb()}
@@ -177,7 +182,8 @@ def _warmup(lem, prob) -> dict:
     """The first ``simulate`` of each controller (compilation included) and the floor kernels'
     first calls; whether the loop kernels came from the disk cache."""
     names = controllers.NAMES
-    kernels = {name: loop.kernel(name, controllers.get(name).law) for name in names}
+    kernels = {name: loop.kernel(name, controllers.get(name).law) for name in names
+               if controllers.get(name).compiled}  # fmt: skip
     fresh = all(len(k.signatures) == 0 for k in kernels.values())
     warm = {}
     for name in names:
@@ -200,8 +206,9 @@ def _warmup(lem, prob) -> dict:
 
 def _step_costs(lem, prob, repeats: int) -> tuple[dict, float]:
     """Per-step cost of every controller, the floor and the library's weight update, interleaved
-    (the floor right after the subject); and the median paired CPU ratio subject / floor."""
-    names = controllers.NAMES
+    (the floor right after the subject); and the median paired CPU ratio subject / floor.  The
+    Python-level controllers are timed apart (``analysis._py_controller_bench``)."""
+    names = [n for n in controllers.NAMES if controllers.get(n).compiled]
     per = {name: [] for name in names}
     floor_t, generic_t, lib_t, paired = [], [], [], []
     for _ in range(repeats):
@@ -403,6 +410,9 @@ def targets_met(rec: dict) -> dict:
         and rec["sweep"]["large_sweep"]["runs"] >= t["large_sweep_runs_min"],
         "plant_overhead": None if "plant" not in rec else all(
             rec["plant"][n]["ratio"] <= t["plant_ratio_max"] for n in ("backstepping", SUBJECT)),
+        "nmpc_step_median": None if not (rec.get("python_controllers") or {}).get("nmpc")
+        else rec["python_controllers"]["nmpc"]["step_ms"]["median"]
+        <= t["nmpc_step_median_ms_max"],
     }  # fmt: skip
     if rec["quick"]:
         met["quick_under_2_min"] = rec["elapsed_s"] < t["quick_total_s_max"]
@@ -463,7 +473,7 @@ def notes(rec: dict) -> list[str]:
         "median of the paired CPU-time ratios.",
         "The loop is compiled once per controller (wmr.loop.kernel) and cached on disk: "
         "advance_cache counts the loads from the cache (hits) and compilations (misses) of this "
-        "process.",
+        "process.", *([_py_controller_bench.NOTE] if rec.get("python_controllers") else []),
     ]
 
 
@@ -499,6 +509,9 @@ def _targets_table(rec: dict) -> list[str]:
         *(f"| {name} step, plant with lag + delay + slip / ideal plant "
           f"| {rec['plant'][name]['ratio']:.2f}x | <= {t['plant_ratio_max']:g}x "
           f"| {ok('plant_overhead')} |" for name in ("backstepping", SUBJECT) if "plant" in rec),
+        *(f"| nmpc's step, median [ms] | {v['step_ms']['median']:.3f} "
+          f"| <= {t['nmpc_step_median_ms_max']:g} | {ok('nmpc_step_median')} |"
+          for v in [(rec.get("python_controllers") or {}).get("nmpc")] if v),
         "",
     ]  # fmt: skip
 
@@ -519,27 +532,6 @@ def _costs_table(rec: dict) -> list[str]:
     ]  # fmt: skip
 
 
-def _python_control_table(rec: dict) -> list[str]:
-    lines = ["| python-control nlsys | µs/step | ratio to the kernel | max abs q difference |",
-             "|---|---:|---:|---:|"]  # fmt: skip
-    for key, v in rec["python_control"].items():
-        lines.append(f"| {key} | {v['us_per_step']:.1f} | {v['ratio']:.1f}x "
-                     f"| {v['max_abs_q_difference']:.1e} |")  # fmt: skip
-    a = rec.get("python_control_overhead")
-    if a:
-        pc = rec["python_control"][f"{SUBJECT}/jit"]
-        lines += [
-            "", f"python-control's own cost (CPU µs/step): an nlsys of the same {a['n_states']} "
-            "states whose update only copies the state costs "
-            f"{a['copy_only_nlsys_cpu_us_per_step']:.1f} per step; the closed loop as an nlsys "
-            f"costs {pc['cpu_us_per_step']:.1f}.  The kernel takes "
-            f"{rec['cpu_us_per_step'][SUBJECT]:.2f}, of which the Joseph weight update alone is "
-            f"{rec['weight_update_cpu_us_per_step']:.2f}, and the floor (a standard-form update "
-            f"alone, nothing else of the loop) is {rec['floor_cpu_us_per_step']:.2f}.",
-        ]  # fmt: skip
-    return lines + [""]
-
-
 def table(rec: dict) -> str:
     """``tables/performance.md``: a title, the tables (:func:`tables`) and the notes."""
     notes_md = [f"- {note}" for note in notes(rec)]
@@ -555,7 +547,8 @@ def tables(rec: dict) -> str:
         f"load average {mach['load_average_start'][0]:.2f}"
         f" -> {mach['load_average_end'][0]:.2f}; quick = {rec['quick']}.", "",
     ]  # fmt: skip
-    lines += _targets_table(rec) + _costs_table(rec) + _python_control_table(rec)
+    lines += _targets_table(rec) + _costs_table(rec) + _py_controller_bench.table_lines(rec)
+    lines += _bench.python_control_table(rec, SUBJECT)
     lines += ["| hidden | n | loop µs/step | weight_update µs | floor µs | loop/floor |",
               "|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
     for v in rec["vs_weights"]:
