@@ -200,7 +200,7 @@ def _fitted_table(record: dict) -> list[str]:
 
 def render(record: dict) -> str:
     """The report section."""
-    from analysis.robots import TITLE
+    from analysis.robots import LEFT_OUT, TITLE
 
     lag = record["servo_lag"]
     notes = " ".join(answer(record))
@@ -221,6 +221,9 @@ def render(record: dict) -> str:
         "robot's error, 0 the unicycle's, a negative one that it moves the error away:",
         "",
         *_fitted_table(record), "",
+        "Left out: " + "; ".join(f"{controllers.label(c)} ({why})"
+                                for c, why in LEFT_OUT.items()) + ".",
+        "",
         f"Cost: {record['cost']['runs']} runs, {record['cost']['seconds']:.0f} s"
         + (" (quick level)." if record["quick"] else "."),
         "",

@@ -147,22 +147,20 @@ def robots(rob: dict) -> Finding:
     from analysis import _robots_views as views
     from analysis.robots import TITLE
 
-    lad = rob["ladder"]
-    rel = [lad[t]["mujoco"]["cells"][c]["mean"] / lad[t]["kinematic"]["cells"][c]["mean"]
-           for t in lad for c in rob["controllers"]
-           if lad[t]["mujoco"]["cells"][c]["mean"] and lad[t]["kinematic"]["cells"][c]["mean"]]
+    lo, hi = views.ratio_range(rob)
     slid = [p["demand"] for p in rob["sliding"] if p["sliding"]]
     best = views.best_per_rung(rob)
-    names = {r: sorted({c for t in best[r].values() for c in t}) for r in ("kinematic", "mujoco")}
+    same = best["kinematic"] == best["mujoco"]
     changes = sum(1 for rr in rob["order_changes"].values() for v in rr.values() if v)
-    text = (f"On the MuJoCo robot every controller's error after the transient is "
-            f"{min(rel):.2f}–{max(rel):.2f} times its error on the kinematic unicycle "
-            f"({rob['seeds']} seeds, the paper's trajectories). It slides once the lateral "
-            f"acceleration reaches {min(slid):.2f} of the Coulomb bound μ g. "
-            "The best at the defaults is "
-            + " ≈ ".join(controllers.label(c) for c in names["kinematic"]) + " on the unicycle and "
-            + " ≈ ".join(controllers.label(c) for c in names["mujoco"]) + " on MuJoCo "
-            f"(ties by paired test), with {changes} significant order reversals between rungs.")
+    text = (f"At a {1e3 * rob['mj_timestep']:g} ms physics step every controller's error after "
+            f"the transient on the MuJoCo robot is {lo:.2f}–{hi:.2f} times its error on the "
+            f"kinematic unicycle ({rob['mj_seeds']} seeds; the shipped 2 ms step is not "
+            f"converged), and it slides from {min(slid):.2f} of the Coulomb bound (μ g). "
+            "The best controller at the defaults, per trajectory, is "
+            + views._best_sentence(rob, "mujoco")
+            + (" on both robots" if same else " on MuJoCo (" + views._best_sentence(
+                rob, "kinematic") + " on the unicycle)")
+            + f"; {changes} pair order(s) reverse by more than 5 % between rungs.")
     return Finding("Which controller on which robot?", text, TITLE, "robots_ladder.png")
 
 

@@ -88,9 +88,9 @@ def test_the_summary_is_short_and_its_paragraphs_have_at_most_three_sentences():
 _CITED = {"0.1"}
 
 
-#: The perturbation's factors, cycled over the floats of a record in order (unequal, so that a
-#: ratio of two numbers moves too).
-FACTORS = (1.37, 1.53, 1.19, 1.71)
+#: The k-th float of a record is scaled by 1.2 + 0.5 frac(k phi) (phi the golden ratio): unequal
+#: and not periodic, so that a ratio of two numbers moves too.
+PHI = (1 + 5**0.5) / 2
 
 
 def _perturb(obj, count):
@@ -98,7 +98,7 @@ def _perturb(obj, count):
         return obj
     if isinstance(obj, float):
         count[0] += 1
-        return obj * FACTORS[count[0] % len(FACTORS)]
+        return obj * (1.2 + 0.5 * ((count[0] * PHI) % 1.0))
     if isinstance(obj, list):
         return [_perturb(x, count) for x in obj]
     if isinstance(obj, dict):
