@@ -1,0 +1,211 @@
+"""The regime study's verdicts, prose, table and figure, from its record only (issue 22 item 7).
+
+A mechanism's verdict on a contrast ``a - b`` (tuned settings, the model's estimate averaged
+over the pose sources, as the ratio of the both-stable RMSEs ``exp(log r_a - log r_b)``):
+
+- ``"costs"``: ``a`` diverges significantly more often than ``b`` on either pose source
+  (exact McNemar at 0.05);
+- ``"same within 5 %"``: else, the 95 % interval of the ratio lies inside ``[1/1.05, 1.05]``
+  (a difference that exists but is smaller than the margin is "the same" in practice);
+- ``"pays"``: else, the interval lies below 1; ``"costs"``: above 1;
+- ``"undecided"``: otherwise (or no stable pairs).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from analysis import common
+from wmr import controllers
+
+__all__ = ["verdicts", "classify", "notes", "table", "figure"]
+
+KEY = "best-adaptive - best-fixed"
+IA = "iapid-nn-dekf - adaptive-pid"
+
+
+def _div_worse(c: dict, mech: str) -> tuple[bool, bool]:
+    """Whether a diverges significantly more / less often than b on ``mech`` (tuned)."""
+    worse = better = False
+    for pose in ("raw", "filtered"):
+        d = c["tuned"][pose].get(mech, {}).get("divergence")
+        if d and d["p"] < 0.05:
+            worse |= d["a_only"] > d["b_only"]
+            better |= d["b_only"] > d["a_only"]
+    return worse, better
+
+
+def classify(est: dict | None, div_worse: bool, margin: float = 0.05) -> str:
+    """The verdict word (see the module) from the model's estimate ``est`` (``ratio_ci``)."""
+    if div_worse:
+        return "costs"
+    if est is None:
+        return "undecided"
+    lo, hi = est["ratio_ci"]
+    if lo > 1 / (1 + margin) and hi < 1 + margin:
+        return "same within 5 %"
+    if hi < 1.0:
+        return "pays"
+    if lo > 1.0:
+        return "costs"
+    return "undecided"
+
+
+def verdicts(record: dict) -> dict:
+    """Per mechanism and contrast: the verdict word, the ratio and its interval."""
+    out: dict = {"rule": __doc__.split("\n\n", 1)[1].strip(), "mechanisms": {}}
+    for m in record["mechanisms"]:
+        out["mechanisms"][m] = {}
+        for name, c in record["contrasts"].items():
+            model = c["tuned"]["model"]
+            est = model["mechanisms"].get(m) if model else None
+            worse, _ = _div_worse(c, m)
+            out["mechanisms"][m][name] = {
+                "verdict": classify(est, worse), "diverges_more": worse,
+                "ratio": None if est is None else est["ratio"],
+                "ratio_ci": None if est is None else est["ratio_ci"],
+                "n_stable": 0 if est is None else est["n"]}  # fmt: skip
+    return out
+
+
+def _r(v: dict) -> str:
+    if v["ratio"] is None:
+        return "no stable pairs"
+    lo, hi = v["ratio_ci"]
+    return f"{v['ratio']:.3f} [{lo:.3f}, {hi:.3f}], n = {v['n_stable']}"
+
+
+def _names(ms) -> str:
+    return ", ".join(ms) if ms else "none"
+
+
+def _lbl(c: str) -> str:
+    return controllers.label(c)
+
+
+def notes(record: dict) -> list[str]:
+    """The answer first (at most five sentences), then the details, all from the record."""
+    v = record["verdict"]["mechanisms"]
+    by = {w: [m for m in v if v[m][KEY]["verdict"] == w]
+          for w in ("pays", "costs", "same within 5 %", "undecided")}  # fmt: skip
+    ia = {w: [m for m in v if v[m][IA]["verdict"] == w]
+          for w in ("pays", "costs", "same within 5 %", "undecided")}  # fmt: skip
+    best = record["best"]
+    tot = {}
+    for pose in record["poses"]:
+        for m, arms in record["divergence"]["tuned"][pose].items():
+            for c, x in arms.items():
+                k, n = tot.get(c, (0, 0))
+                tot[c] = (k + x["diverged"], n + x["n"])
+    worst = max(tot, key=lambda c: tot[c][0] / max(tot[c][1], 1))
+    d, s = record["design"], record["seeds"]
+    ada = ", ".join(f"{_lbl(best[p]['best-adaptive'])} on the {p} pose" for p in best)
+    fix = ", ".join(_lbl(best[p]["best-fixed"]) for p in best)
+    answer = [
+        f"Adaptation (the best adaptive arm by the training objective: {ada}) "
+        f"against the best fixed arm ({fix}), "
+        f"each tuned with the same budget per free setting, pays on {_names(by['pays'])}; it "
+        f"costs on {_names(by['costs'])}; it is the same within 5 % on "
+        f"{_names(by['same within 5 %'])}; undecided on {_names(by['undecided'])}.",
+        f"IAPID-NN-DEKF against APID on the same pose pays on {_names(ia['pays'])}, costs on "
+        f"{_names(ia['costs'])}, is the same within 5 % on {_names(ia['same within 5 %'])} and "
+        f"undecided on {_names(ia['undecided'])} (ratios of both-stable RMSE below).",
+        f"Divergence at the tuned settings: {_lbl(worst)} fails most often "
+        f"({tot[worst][0]} of {tot[worst][1]} runs); IAPID-NN-DEKF "
+        f"{tot['iapid-nn-dekf'][0]} of {tot['iapid-nn-dekf'][1]}, APID "
+        f"{tot['adaptive-pid'][0]} of {tot['adaptive-pid'][1]}.",
+        f"Level '{record['level']}': {s['tuned']} seeds at the tuned settings "
+        f"({d['mujoco_seeds']} on the MuJoCo robot, lemniscate only), {s['default']} at the "
+        f"defaults; tuning {d['per_setting']} evaluations per free setting per restart, 2 "
+        f"restarts, {len(record['tuning']['budget']['training'])} training runs per "
+        "evaluation; the earlier regime verdict (counts of cells at a rate grid) is retracted.",
+    ]
+    rows = []
+    for m in record["mechanisms"]:
+        rows.append(f"{m}: best adaptive - best fixed {_r(v[m][KEY])} ({v[m][KEY]['verdict']}); "
+                    f"IAPID - APID {_r(v[m][IA])} ({v[m][IA]['verdict']}); APID - PID "
+                    f"{_r(v[m]['adaptive-pid - pid'])}; oracle - IAPID "
+                    f"{_r(v[m]['iapid-oracle - iapid-nn-dekf'])}.")
+    agree = [f"{a}@{p}" for p, arms in record["tuning"]["arms"].items()
+             for a, t in arms.items() if not t["agreement"]["agree"]]  # fmt: skip
+    edge = [f"{a}@{p} ({', '.join(e['setting'] + ' ' + e['edge'] for e in t['edges'])})"
+            for p, arms in record["tuning"]["arms"].items() for a, t in arms.items()
+            if t["edges"]]  # fmt: skip
+    tests = record["contrasts"][IA]["tuned"]["model"]["tests"]
+    extra = [
+        "Ratios are exp of the model's contrast (log RMSE after the transient on the "
+        "both-stable pairs, clustered by seed), averaged over the pose sources; n is the "
+        "count of both-stable pairs.",
+        *rows,
+        f"Interactions of IAPID - APID: pose source p = {tests['pose_source']['p']:.3g}, "
+        + (f"trajectory p = {tests['trajectory']['p']:.3g}, " if tests["trajectory"] else "")
+        + f"mechanism p = {tests['mechanism']['p']:.3g} (cluster-robust Wald tests)."
+        if tests["pose_source"] and tests["mechanism"] else "Interaction tests: too few cells.",
+        f"Tuning restarts that disagree (spread above 5 % of the best objective): "
+        f"{_names(agree)}; optima on a box edge: {_names(edge)}.",
+        _paper(record),
+        f"Cost: {record['cost']['runs']:,} evaluation runs, {record['cost']['seconds']:.0f} s "
+        f"in the last invocation (tuning {record['cost']['tuning_seconds']:.0f} s) on "
+        f"{record['cost']['engine']} with {record['cost']['workers']} workers.",
+    ]
+    return answer + extra
+
+
+def _paper(record: dict) -> str:
+    e = record["paper_arm"]["endpoints"]
+    parts = []
+    for m, x in e.items():
+        t = [y for y in x["trajectories"].values() if y["n_stable"]]
+        if t:
+            rel = float(np.median([y["rel_diff"] for y in t]))
+            parts.append(f"{m} {100 * rel:+.1f} %")
+    return (f"The paper's asymmetric arm ({record['paper_arm']['label']}), median relative "
+            f"difference of the both-stable means over trajectories: {'; '.join(parts)}.")
+
+
+def table(record: dict) -> str:
+    """Per mechanism and arm at the tuned settings: divergence (k/n, Clopper-Pearson) per pose
+    source, and the verdicts (``tables/regimes.md``)."""
+    header = ["mechanism", "pose", *[_lbl(a) for a in record["arms"]]]
+    rows = []
+    for m in record["mechanisms"]:
+        for pose in record["poses"]:
+            arms = record["divergence"]["tuned"][pose].get(m, {})
+            rows.append([m, pose, *[
+                f"{arms[a]['diverged']}/{arms[a]['n']} [{arms[a]['ci_low']:.2f}, "
+                f"{arms[a]['ci_high']:.2f}]" if a in arms else "—" for a in record["arms"]]])
+    lines = ["Divergence at the tuned settings (diverged/runs, 95 % Clopper-Pearson):", "",
+             *common.md_table(header, rows), ""]  # fmt: skip
+    v = record["verdict"]["mechanisms"]
+    names = list(record["contrasts"])
+    lines += ["Verdicts (ratio of both-stable RMSE, 95 % interval, pairs):", "",
+              *common.md_table(["mechanism", *names],
+                               [[m, *[f"{v[m][n]['verdict']}: {_r(v[m][n])}" for n in names]]
+                                for m in record["mechanisms"]])]  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def figure(record: dict):
+    """Each contrast's ratio per mechanism with its interval, per pose source (tuned)."""
+    import matplotlib.pyplot as plt
+
+    names = list(record["contrasts"])
+    mechs = record["mechanisms"]
+    fig, axes = plt.subplots(1, len(names), figsize=(3.6 * len(names), 0.4 * len(mechs) + 1.8),
+                             sharey=True, squeeze=False, layout="constrained")  # fmt: skip
+    for ax, n in zip(axes[0], names, strict=True):
+        model = record["contrasts"][n]["tuned"]["model"]
+        for k, pose in enumerate(record["poses"]):
+            for i, m in enumerate(mechs):
+                e = (model or {}).get("cells", {}).get(m, {}).get(pose)
+                if e:
+                    y = i + (k - 0.5) * 0.3
+                    ax.plot(e["ratio_ci"], [y, y], "-", color=f"C{k}")
+                    ax.plot(e["ratio"], y, "o", color=f"C{k}", label=pose if i == 0 else None)
+        ax.axvline(1.0, color="k", lw=0.8)
+        ax.set_xscale("log")
+        ax.set_title(n, fontsize=8)
+        ax.set_xlabel("RMSE ratio a / b (both stable)")
+    axes[0, 0].set_yticks(range(len(mechs)), mechs, fontsize=7)
+    axes[0, 0].legend(fontsize=7)
+    return fig
