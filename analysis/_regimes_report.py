@@ -1,14 +1,17 @@
 """The regime study's verdicts, prose, table and figure, from its record only (issue 22 item 7).
 
 A mechanism's verdict on a contrast ``a - b`` (tuned settings, the model's estimate averaged
-over the pose sources, as the ratio of the both-stable RMSEs ``exp(log r_a - log r_b)``):
+per pose source, as the ratio of the both-stable RMSEs ``exp(log r_a - log r_b)``):
 
-- ``"costs"``: ``a`` diverges significantly more often than ``b`` on either pose source
-  (exact McNemar at 0.05);
+On each pose source (the model's cell estimate):
+
+- ``"costs"``: ``a`` diverges significantly more often than ``b`` (exact McNemar at 0.05);
 - ``"same within 5 %"``: else, the 95 % interval of the ratio lies inside ``[1/1.05, 1.05]``
   (a difference that exists but is smaller than the margin is "the same" in practice);
 - ``"pays"``: else, the interval lies below 1; ``"costs"``: above 1;
-- ``"undecided"``: otherwise (or no stable pairs).
+- ``"undecided"``: otherwise, or fewer than ``MIN_PAIRS`` = 6 both-stable pairs.
+
+The mechanism's verdict is the pose sources' common word, else "depends on the pose source".
 """
 
 from __future__ import annotations
@@ -21,25 +24,23 @@ from wmr import controllers
 __all__ = ["verdicts", "classify", "notes", "table", "figure"]
 
 KEY = "best-adaptive - best-fixed"
+#: Fewest both-stable pairs behind a verdict (fewer: "undecided"; a cell's interval from the
+#: model's pooled clusters is not evidence about two or three pairs).
+MIN_PAIRS = 6
 IA = "iapid-nn-dekf - adaptive-pid"
 
 
-def _div_worse(c: dict, mech: str) -> tuple[bool, bool]:
-    """Whether a diverges significantly more / less often than b on ``mech`` (tuned)."""
-    worse = better = False
-    for pose in ("raw", "filtered"):
-        d = c["tuned"][pose].get(mech, {}).get("divergence")
-        if d and d["p"] < 0.05:
-            worse |= d["a_only"] > d["b_only"]
-            better |= d["b_only"] > d["a_only"]
-    return worse, better
+def _div_worse(c: dict, mech: str, pose: str) -> bool:
+    """Whether a diverges significantly more often than b on ``mech`` and ``pose`` (tuned)."""
+    d = c["tuned"][pose].get(mech, {}).get("divergence")
+    return bool(d and d["p"] < 0.05 and d["a_only"] > d["b_only"])
 
 
 def classify(est: dict | None, div_worse: bool, margin: float = 0.05) -> str:
     """The verdict word (see the module) from the model's estimate ``est`` (``ratio_ci``)."""
     if div_worse:
         return "costs"
-    if est is None:
+    if est is None or est["n"] < MIN_PAIRS:
         return "undecided"
     lo, hi = est["ratio_ci"]
     if lo > 1 / (1 + margin) and hi < 1 + margin:
@@ -51,20 +52,29 @@ def classify(est: dict | None, div_worse: bool, margin: float = 0.05) -> str:
     return "undecided"
 
 
+def _one(est: dict | None, worse: bool) -> dict:
+    return {"verdict": classify(est, worse), "diverges_more": worse,
+            "ratio": None if est is None else est["ratio"],
+            "ratio_ci": None if est is None else est["ratio_ci"],
+            "n_stable": 0 if est is None else est["n"]}  # fmt: skip
+
+
 def verdicts(record: dict) -> dict:
-    """Per mechanism and contrast: the verdict word, the ratio and its interval."""
+    """Per mechanism and contrast: the verdict on each pose source (the model's cell estimate
+    and that pose's McNemar), and the mechanism's: the common word when both pose sources agree,
+    else "depends on the pose source"; beside it the ratio averaged over the pose sources."""
     out: dict = {"rule": __doc__.split("\n\n", 1)[1].strip(), "mechanisms": {}}
     for m in record["mechanisms"]:
         out["mechanisms"][m] = {}
         for name, c in record["contrasts"].items():
-            model = c["tuned"]["model"]
-            est = model["mechanisms"].get(m) if model else None
-            worse, _ = _div_worse(c, m)
-            out["mechanisms"][m][name] = {
-                "verdict": classify(est, worse), "diverges_more": worse,
-                "ratio": None if est is None else est["ratio"],
-                "ratio_ci": None if est is None else est["ratio_ci"],
-                "n_stable": 0 if est is None else est["n"]}  # fmt: skip
+            model = c["tuned"]["model"] or {"cells": {}, "mechanisms": {}}
+            poses = {p: _one(model["cells"].get(m, {}).get(p), _div_worse(c, m, p))
+                     for p in record["poses"]}  # fmt: skip
+            words = {v["verdict"] for v in poses.values()}
+            mean = _one(model["mechanisms"].get(m), False)
+            mean["verdict"] = words.pop() if len(words) == 1 else "depends on the pose source"
+            mean["diverges_more"] = any(v["diverges_more"] for v in poses.values())
+            out["mechanisms"][m][name] = {**mean, "poses": poses}
     return out
 
 
@@ -73,6 +83,12 @@ def _r(v: dict) -> str:
         return "no stable pairs"
     lo, hi = v["ratio_ci"]
     return f"{v['ratio']:.3f} [{lo:.3f}, {hi:.3f}], n = {v['n_stable']}"
+
+
+def _rp(v: dict) -> str:
+    """The mechanism's ratio and each pose source's verdict and ratio."""
+    return f"{_r(v)}; " + "; ".join(f"{p}: {x['verdict']} {_r(x)}"
+                                    for p, x in v["poses"].items())
 
 
 def _names(ms) -> str:
@@ -86,10 +102,9 @@ def _lbl(c: str) -> str:
 def notes(record: dict) -> list[str]:
     """The answer first (at most five sentences), then the details, all from the record."""
     v = record["verdict"]["mechanisms"]
-    by = {w: [m for m in v if v[m][KEY]["verdict"] == w]
-          for w in ("pays", "costs", "same within 5 %", "undecided")}  # fmt: skip
-    ia = {w: [m for m in v if v[m][IA]["verdict"] == w]
-          for w in ("pays", "costs", "same within 5 %", "undecided")}  # fmt: skip
+    words = ("pays", "costs", "same within 5 %", "undecided", "depends on the pose source")
+    by = {w: [m for m in v if v[m][KEY]["verdict"] == w] for w in words}
+    ia = {w: [m for m in v if v[m][IA]["verdict"] == w] for w in words}
     best = record["best"]
     tot = {}
     for pose in record["poses"]:
@@ -106,9 +121,11 @@ def notes(record: dict) -> list[str]:
         f"against the best fixed arm ({fix}), "
         f"each tuned with the same budget per free setting, pays on {_names(by['pays'])}; it "
         f"costs on {_names(by['costs'])}; it is the same within 5 % on "
-        f"{_names(by['same within 5 %'])}; undecided on {_names(by['undecided'])}.",
+        f"{_names(by['same within 5 %'])}; it depends on the pose source on "
+        f"{_names(by['depends on the pose source'])}; undecided on {_names(by['undecided'])}.",
         f"IAPID-NN-DEKF against APID on the same pose pays on {_names(ia['pays'])}, costs on "
-        f"{_names(ia['costs'])}, is the same within 5 % on {_names(ia['same within 5 %'])} and "
+        f"{_names(ia['costs'])}, is the same within 5 % on {_names(ia['same within 5 %'])}, "
+        f"depends on the pose source on {_names(ia['depends on the pose source'])} and is "
         f"undecided on {_names(ia['undecided'])} (ratios of both-stable RMSE below).",
         f"Divergence at the tuned settings: {_lbl(worst)} fails most often "
         f"({tot[worst][0]} of {tot[worst][1]} runs); IAPID-NN-DEKF "
@@ -120,12 +137,26 @@ def notes(record: dict) -> list[str]:
         f"restarts, {len(record['tuning']['budget']['training'])} training runs per "
         "evaluation; the earlier regime verdict (counts of cells at a rate grid) is retracted.",
     ]
+    arms = [t for p in record["tuning"]["arms"].values() for t in p.values()]
+    n_dis = sum(not t["agreement"]["agree"] for t in arms)
+    answer.append(
+        f"Each arm runs at its own tuned settings, and the tuning's 2 restarts disagree (by more "
+        f"than 5 % of the objective) for {n_dis} of {len(arms)} tuned arms: at this budget a "
+        "tuned contrast includes how well each arm's tuning went (defaults below).")
+    dm = record["contrasts"][IA]["default"]["model"]
     rows = []
+    if dm:
+        rows.append("At the defaults (the same settings for IAPID and APID), IAPID - APID: "
+                    + "; ".join(f"{m} {e['ratio']:.3f} [{e['ratio_ci'][0]:.3f}, "
+                                f"{e['ratio_ci'][1]:.3f}]" for m, e in dm["mechanisms"].items())
+                    + ".")  # fmt: skip
     for m in record["mechanisms"]:
-        rows.append(f"{m}: best adaptive - best fixed {_r(v[m][KEY])} ({v[m][KEY]['verdict']}); "
-                    f"IAPID - APID {_r(v[m][IA])} ({v[m][IA]['verdict']}); APID - PID "
-                    f"{_r(v[m]['adaptive-pid - pid'])}; oracle - IAPID "
-                    f"{_r(v[m]['iapid-oracle - iapid-nn-dekf'])}.")
+        rows.append(f"{m}: best adaptive - best fixed {v[m][KEY]['verdict']} ({_rp(v[m][KEY])}); "
+                    f"IAPID - APID {v[m][IA]['verdict']} ({_rp(v[m][IA])}); APID - PID "
+                    f"{v[m]['adaptive-pid - pid']['verdict']} "
+                    f"({_r(v[m]['adaptive-pid - pid'])}); oracle - IAPID "
+                    f"{v[m]['iapid-oracle - iapid-nn-dekf']['verdict']} "
+                    f"({_r(v[m]['iapid-oracle - iapid-nn-dekf'])}).")
     agree = [f"{a}@{p}" for p, arms in record["tuning"]["arms"].items()
              for a, t in arms.items() if not t["agreement"]["agree"]]  # fmt: skip
     edge = [f"{a}@{p} ({', '.join(e['setting'] + ' ' + e['edge'] for e in t['edges'])})"
@@ -134,8 +165,9 @@ def notes(record: dict) -> list[str]:
     tests = record["contrasts"][IA]["tuned"]["model"]["tests"]
     extra = [
         "Ratios are exp of the model's contrast (log RMSE after the transient on the "
-        "both-stable pairs, clustered by seed), averaged over the pose sources; n is the "
-        "count of both-stable pairs.",
+        "both-stable pairs, clustered by seed; the trajectories are fixed effects, so an "
+        "interval is over seeds on these trajectories), averaged over the pose sources, then "
+        "per pose source; n is the count of both-stable pairs.",
         *rows,
         f"Interactions of IAPID - APID: pose source p = {tests['pose_source']['p']:.3g}, "
         + (f"trajectory p = {tests['trajectory']['p']:.3g}, " if tests["trajectory"] else "")
@@ -144,9 +176,11 @@ def notes(record: dict) -> list[str]:
         f"Tuning restarts that disagree (spread above 5 % of the best objective): "
         f"{_names(agree)}; optima on a box edge: {_names(edge)}.",
         _paper(record),
-        f"Cost: {record['cost']['runs']:,} evaluation runs, {record['cost']['seconds']:.0f} s "
-        f"in the last invocation (tuning {record['cost']['tuning_seconds']:.0f} s) on "
-        f"{record['cost']['engine']} with {record['cost']['workers']} workers.",
+        f"Cost: {record['cost']['runs']:,} evaluation runs, "
+        f"{record['cost']['run_seconds_total']:.0f} s of running over the invocations that "
+        f"filled the stores; the last invocation ran {record['cost']['runs_this_time']:,} of "
+        f"them in {record['cost']['seconds']:.0f} s (tuning {record['cost']['tuning_seconds']:.0f}"
+        f" s; an arm tuned before is read back from its cache) on {record['cost']['engine']}.",
     ]
     return answer + extra
 

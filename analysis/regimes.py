@@ -207,6 +207,8 @@ def compute(out, level: str, workers: int | None = None) -> dict:
                           "arms": tuned},
                   cost={"runs": int(sum(m["jobs"] for m in manifests)),
                         "runs_this_time": int(sum(m["runs_this_time"] for m in manifests)),
+                        "run_seconds_total": float(sum(m["run_seconds_total"]
+                                                       for m in manifests)),
                         "seconds": seconds, "tuning_seconds": t_tune,
                         "engine": manifests[0]["engine"], "workers": manifests[0]["workers"]})
     record["verdict"] = report.verdicts(record)
@@ -279,8 +281,10 @@ def analyse(rows, tuned: dict) -> dict:
     div = {}
     for (lv, pose, m, c), g in rows.groupby(["level", "pose", "mechanism", "controller"],
                                             sort=False):  # fmt: skip
+        eff = g.effort[~g.failed]
         div.setdefault(lv, {}).setdefault(pose, {}).setdefault(m, {})[c] = {
-            **rstats.divergence(g.failed), "errors": int((g.status != "ok").sum())}
+            **rstats.divergence(g.failed), "errors": int((g.status != "ok").sum()),
+            "effort_stable_mean": float(eff.mean()) if len(eff) else None}  # fmt: skip
     contrasts = {}
     for a, b in CONTRASTS:
         p = _pairs_of(rows, a, b, best)
@@ -297,7 +301,8 @@ def analyse(rows, tuned: dict) -> dict:
     pp = _paper_pairs(rows)
     paper = {"label": "the paper's asymmetric arm: IAPID-NN-DEKF on the filtered pose vs APID on "
                       "the raw pose, defaults", "endpoints": _endpoints(pp, mechs, trajs)}
-    return {"arms": list(tuned["raw"]), "poses": list(POSES), "mechanisms": mechs, "trajectories": trajs,
+    return {"arms": list(tuned["raw"]), "poses": list(POSES), "mechanisms": mechs,
+            "trajectories": trajs,
             "seeds": {lv: int(rows[rows.level == lv].seed.nunique()) for lv in
                       ("tuned", "default")},
             "best": best, "divergence": div, "contrasts": contrasts, "paper_arm": paper,

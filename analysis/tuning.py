@@ -253,7 +253,8 @@ def minimise(f: Callable[[list[np.ndarray]], Sequence[float]], dim: int, evaluat
     its default population ``lambda = 4 + floor(3 ln dim)``, bounds ``[0, 1]``, seed ``seed``,
     started at ``x0`` (default: the centre) with step ``sigma0``; ``floor(evaluations /
     lambda)`` full generations, then the remaining evaluations on the first candidates of one
-    more (not told).  The start ``x0`` is the first candidate evaluated.  Returns ``{"x", "f", "evaluations", "generations", "history"}`` (the best
+    more (not told).  The start ``x0`` is the first candidate evaluated.  Returns
+    ``{"x", "f", "evaluations", "generations", "population", "history"}`` (the best
     point seen, its value, the count, and the best value after each generation).
     """
     import cma
