@@ -176,6 +176,7 @@ def notes(record: dict) -> list[str]:
         f"Tuning restarts that disagree (spread above 5 % of the best objective): "
         f"{_names(agree)}; optima on a box edge: {_names(edge)}.",
         _paper(record),
+        *_recovery(record),
         f"Cost: {record['cost']['runs']:,} evaluation runs, "
         f"{record['cost']['run_seconds_total']:.0f} s of running over the invocations that "
         f"filled the stores; the last invocation ran {record['cost']['runs_this_time']:,} of "
@@ -183,6 +184,30 @@ def notes(record: dict) -> list[str]:
         f" s; an arm tuned before is read back from its cache) on {record['cost']['engine']}.",
     ]
     return answer + extra
+
+
+def _recovery(record: dict) -> list[str]:
+    """One sentence per pose source on the recovery after a change (tuned settings)."""
+    rec = record.get("recovery")
+    if not rec:
+        return []
+    out = []
+    for pose, r in rec["poses"].items():
+        parts = []
+        for name in (IA, KEY):
+            cells = [x for x in r["contrasts"].get(name, {}).values() if x["n_stable"] > 1]
+            if not cells:
+                continue
+            rel = float(np.median([x["rel_diff"] for x in cells]))
+            lower = sum(x["ci_high"] is not None and x["ci_high"] < 0 for x in cells)
+            higher = sum(x["ci_low"] is not None and x["ci_low"] > 0 for x in cells)
+            parts.append(f"{name}: median {100 * rel:+.1f} % over {len(cells)} scenarios, lower "
+                         f"(95 % interval below 0) in {lower}, higher in {higher}")
+        n = min(x["n"] for arms in r["arms"].values() for x in arms.values())
+        out.append(f"Recovery on the {pose} pose (position RMSE over the {rec['window_s']:g} s "
+                   f"after the payload change or the disturbance's start, both-stable pairs of "
+                   f"{n} seeds): " + "; ".join(parts) + ".")
+    return out
 
 
 def _paper(record: dict) -> str:
@@ -222,6 +247,7 @@ def table(record: dict) -> str:
 def figure(record: dict):
     """Each contrast's ratio per mechanism with its interval, per pose source (tuned)."""
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
 
     names = list(record["contrasts"])
     mechs = record["mechanisms"]
@@ -238,6 +264,7 @@ def figure(record: dict):
                     ax.plot(e["ratio"], y, "o", color=f"C{k}", label=pose if i == 0 else None)
         ax.axvline(1.0, color="k", lw=0.8)
         ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(NullFormatter())  # (minor labels overlap on short ranges)
         ax.set_title(n, fontsize=8)
         ax.set_xlabel("RMSE ratio a / b (both stable)")
     axes[0, 0].set_yticks(range(len(mechs)), mechs, fontsize=7)

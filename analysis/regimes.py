@@ -54,16 +54,17 @@ LEVELS = {
               "mechanisms": ("ideal", "lag-delay"), "mujoco": (), "trajectories": ("sinusoid",),
               "seeds": 3, "default_seeds": 3, "duration": 7.0, "mujoco_seeds": 0,
               "mujoco_duration": None, "per_setting": 1, "train_seeds": (100,),
-              "train_duration": 3.0, "training": 2},
+              "train_duration": 3.0, "training": 1},
     "record": {"arms": ARMS, "mechanisms": tuple(design.MECHANISMS),
                "mujoco": tuple(design.MUJOCO), "trajectories": design.TRAJECTORIES, "seeds": 20,
                "default_seeds": 6, "duration": None, "mujoco_seeds": 3, "mujoco_duration": None,
-               "per_setting": 3, "train_seeds": (100,), "train_duration": 20.0, "training": 5},
+               "per_setting": 3, "train_seeds": (100,), "train_duration": 20.0, "training": 5,
+               "recovery_seeds": 10},
     "full": {"arms": ARMS, "mechanisms": tuple(design.MECHANISMS),
              "mujoco": tuple(design.MUJOCO), "trajectories": design.TRAJECTORIES, "seeds": 20,
              "default_seeds": 20, "duration": None, "mujoco_seeds": 10, "mujoco_duration": None,
              "per_setting": 10, "train_seeds": (100, 101), "train_duration": 20.0,
-             "training": 5},
+             "training": 5, "recovery_seeds": 20},
 }  # fmt: skip
 
 
@@ -83,11 +84,12 @@ def _tune(d: dict, eng, store: Path) -> dict:
 
 
 def _spec_text(name: str, files: list[str], seeds: int, pose: str, tables: dict | None,
-               arms: tuple[str, ...]) -> str:  # fmt: skip
+               arms: tuple[str, ...], measures: tuple[str, ...] = ()) -> str:  # fmt: skip
     """A sweep spec: every arm on ``files``, the pose source and each arm's tuned settings as
-    single-level factors (JSON values are TOML values here)."""
+    single-level factors (JSON values are TOML values here); ``measures`` (``wmr.measures``)."""
     lines = [f'name = "{name}"', f"scenarios = {json.dumps(files)}",
-             f"controllers = {json.dumps(list(arms))}", f"seeds = {seeds}", "[design]",
+             f"controllers = {json.dumps(list(arms))}", f"seeds = {seeds}",
+             *([f"measures = {json.dumps(list(measures))}"] if measures else []), "[design]",
              'kind = "grid"', "[factors]", f'"estimator.pose_source" = ["{pose}"]']  # fmt: skip
     for c, table in (tables or {}).items():
         for key, value in table.items():
@@ -107,6 +109,7 @@ def _specs(d: dict, tuned: dict, folder: Path) -> list[tuple[str, str, Path]]:
         (folder / f"lemniscate@{m}.toml").write_text(
             design.evaluation_text("lemniscate", m, d["mujoco_duration"]))
         mj.append(f"lemniscate@{m}.toml")
+    events = [f for f in files if "@lagged-velocity-change" in f or "sinusoid-perturbed@" in f]
     out = []
     for pose in POSES:
         tables = {c: tuned[pose][c]["table"] for c in d["arms"]}
@@ -118,6 +121,48 @@ def _specs(d: dict, tuned: dict, folder: Path) -> list[tuple[str, str, Path]]:
             p.write_text(_spec_text(f"regimes-{level}-{pose}", names, seeds, pose, tab,
                                     d["arms"]))  # fmt: skip
             out.append((level, pose, p))
+        if events and d.get("recovery_seeds"):
+            p = folder / f"recovery-{pose}.toml"
+            p.write_text(_spec_text(f"regimes-recovery-{pose}", events, d["recovery_seeds"], pose,
+                                    tables, d["arms"], ("recovery",)))  # fmt: skip
+            out.append(("recovery", pose, p))
+    return out
+
+
+def _recovery(done: list[tuple[str, str, Path]], store: Path, tuned: dict) -> dict | None:
+    """Recovery after the run's first event (``wmr.measures``: the position RMSE over the 5 s
+    after the plant change or the disturbance's start), tuned settings: per pose source,
+    scenario and arm the mean over the stable runs with their count, and each contrast's
+    paired difference on the both-stable pairs (:func:`analysis._regimes_stats.pair_rmse`)."""
+    specs = [(pose, p) for level, pose, p in done if level == "recovery"]
+    if not specs:
+        return None
+    out: dict = {"window_s": 5.0, "poses": {}}
+    for pose, p in specs:
+        rows = sweep.read_rows(store / p.stem).to_pandas().sort_values("job_id", kind="stable")
+        rows["failed"] = rows.diverged | (rows.status != "ok")
+        rows["tail_position"] = rows.recovery_rmse  # the pairs' statistic is the recovery RMSE
+        rows["pose"], rows["level"] = pose, "recovery"
+        sp = rows.scenario.str.split("@", expand=True)
+        rows["trajectory"], rows["mechanism"] = sp[0], sp[1]
+        best = {"best-adaptive": _best(tuned, pose, ADAPTIVE), "best-fixed": _best(tuned, pose,
+                                                                                   FIXED)}
+        rec: dict = {"arms": {}, "contrasts": {}}
+        for (sc, c), g in rows.groupby(["scenario", "controller"], sort=False):
+            ok = g.recovery_rmse[~g.failed]
+            rec["arms"].setdefault(sc, {})[c] = {"n_stable": int(len(ok)), "n": int(len(g)),
+                                                 "mean": float(ok.mean()) if len(ok) else None}
+        for a, b in CONTRASTS:
+            ca, cb = best.get(a, a), best.get(b, b)
+            if ca not in set(rows.controller) or cb not in set(rows.controller):
+                continue
+            key = ["scenario", "seed"]
+            j = _join(rows[rows.controller == ca].set_index(key),
+                      rows[rows.controller == cb].set_index(key))
+            rec["contrasts"][f"{a} - {b}"] = {
+                sc: rstats.pair_rmse(g.tail_position_a, g.failed_a, g.tail_position_b,
+                                     g.failed_b) for sc, g in j.groupby("scenario", sort=False)}
+        out["poses"][pose] = rec
     return out
 
 
@@ -126,6 +171,8 @@ def _frame(done: list[tuple[str, str, Path]], store: Path):
 
     parts = []
     for level, pose, p in done:
+        if level == "recovery":
+            continue
         rows = sweep.read_rows(store / p.stem).to_pandas().sort_values("job_id", kind="stable")
         rows = rows[["scenario", "controller", "seed", "tail_position", "effort", "diverged",
                      "status"]].copy()  # fmt: skip
@@ -191,6 +238,7 @@ def compute(out, level: str, workers: int | None = None) -> dict:
     seconds = time.perf_counter() - t0
     rows = _frame(done, store)
     record = analyse(rows, tuned)
+    record["recovery"] = _recovery(done, store, tuned)
     record.update(level=level, design={k: (list(v) if isinstance(v, tuple) else v)
                                        for k, v in d.items()},
                   arms_run=_arm_entries(done),

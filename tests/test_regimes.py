@@ -279,3 +279,27 @@ def test_a_committed_run_is_reproduced_by_wmr_run(tmp_path):
     cell = record["contrasts"]["adaptive-pid - pid"]["tuned"]["raw"]["lag-delay"]
     assert cell["trajectories"]["lemniscate"]["pairs"] == record["design"]["seeds"]
     assert math.isfinite(r.rmse_position)
+
+
+@committed
+@pytest.mark.slow
+def test_a_committed_recovery_cell_is_its_runs():
+    """Recovery after the payload change (``wmr.measures``' recovery RMSE) of the tuned APID and
+    PID on the raw pose, every seed of the record, through the engine's job-to-row mapping."""
+    from wmr.engine import Job
+    from wmr.engine.jobs import job_row
+
+    record = json.loads(RECORD.read_text())
+    rec = record["recovery"]["poses"]["raw"]
+    sc_name = "lemniscate@lagged-velocity-change"
+    doc = design.document("lemniscate", "lagged-velocity-change")
+    rows = {}
+    for c in ("adaptive-pid", "pid"):
+        sc = tuning.scenario(doc, tuning.arm(c, "raw"), record["tuning"]["arms"]["raw"][c]["table"])
+        rows[c] = [job_row(Job(sc, c, s, measures=("recovery",)))
+                   for s in range(record["design"]["recovery_seeds"])]  # fmt: skip
+    a, b = rows["adaptive-pid"], rows["pid"]
+    got = rstats.pair_rmse([r["recovery_rmse"] for r in a], [r["diverged"] for r in a],
+                           [r["recovery_rmse"] for r in b], [r["diverged"] for r in b])
+    assert got == rec["contrasts"]["adaptive-pid - pid"][sc_name]
+    assert rec["arms"][sc_name]["pid"]["n"] == len(b)
