@@ -149,7 +149,10 @@ def notes(record: dict) -> list[str]:
         rows.append("At the defaults (the same settings for IAPID and APID), IAPID - APID: "
                     + "; ".join(f"{m} {e['ratio']:.3f} [{e['ratio_ci'][0]:.3f}, "
                                 f"{e['ratio_ci'][1]:.3f}]" for m, e in dm["mechanisms"].items())
-                    + ".")  # fmt: skip
+                    + f" ({dm['clusters']} seeds as clusters"
+                    + (", too few for a cluster-robust interval to be trusted"
+                       if dm["clusters"] < 10 else "") + "; the fit's warnings: "
+                    f"{'; '.join(dict.fromkeys(dm['warnings'])) or 'none'}).")  # fmt: skip
     for m in record["mechanisms"]:
         rows.append(f"{m}: best adaptive - best fixed {v[m][KEY]['verdict']} ({_rp(v[m][KEY])}); "
                     f"IAPID - APID {v[m][IA]['verdict']} ({_rp(v[m][IA])}); APID - PID "
@@ -171,7 +174,9 @@ def notes(record: dict) -> list[str]:
         *rows,
         f"Interactions of IAPID - APID: pose source p = {tests['pose_source']['p']:.3g}, "
         + (f"trajectory p = {tests['trajectory']['p']:.3g}, " if tests["trajectory"] else "")
-        + f"mechanism p = {tests['mechanism']['p']:.3g} (cluster-robust Wald tests)."
+        + f"mechanism p = {tests['mechanism']['p']:.3g} (cluster-robust Wald tests, "
+        f"{record['contrasts'][IA]['tuned']['model']['clusters']} clusters; the fit's warnings: "
+        f"{len(record['contrasts'][IA]['tuned']['model']['warnings'])})."
         if tests["pose_source"] and tests["mechanism"] else "Interaction tests: too few cells.",
         f"Tuning restarts that disagree (spread above 5 % of the best objective): "
         f"{_names(agree)}; optima on a box edge: {_names(edge)}.",
