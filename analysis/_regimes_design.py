@@ -22,7 +22,7 @@ from pathlib import Path
 from wmr import scenario as scn
 
 __all__ = ["MECHANISMS", "MUJOCO", "TRAJECTORIES", "TRAINING", "document", "evaluation_text",
-           "training_documents", "context", "arm_entry", "COMPARED", "matched",
+           "training_documents", "training_on", "context", "arm_entry", "COMPARED", "matched",
            "MatchError"]  # fmt: skip
 
 #: The evaluation's plant mechanisms: the ``[plant]`` table of each (TOML text).
@@ -122,6 +122,22 @@ def training_documents(duration: float = 20.0, count: int | None = None) -> dict
         if _TRAIN_PLANT[plant]:
             doc.update(tomllib.loads(_TRAIN_PLANT[plant]))
         out[f"{ref}@{plant}"] = doc
+    return out
+
+
+def training_on(mechanism: str, duration: float = 20.0) -> dict[str, dict]:
+    """The training trajectories on the evaluation ``mechanism``'s plant (a controller tuned for
+    a known robot: the trajectories stay disjoint from the evaluation's)."""
+    out = {}
+    for ref, (text, pose, dist) in _TRAIN_REF.items():
+        body = (f'name = "{ref}@{mechanism}"\nduration = {duration}\ndt = 0.01\n'
+                f"initial_pose = {pose}\n[reference]\n{text}[noise]\n"
+                "pose_std = [0.01, 0.01, 0.01]\n")
+        if dist:
+            body += (f"[[disturbance]]\nstart = {0.4 * duration}\nstop = {0.6 * duration}\n"
+                     f"velocity = [{dist[0]}, {dist[1]}]\n")
+        plant = MECHANISMS[mechanism].replace("at = 20.0", f"at = {0.5 * duration}")  # mid-run
+        out[f"{ref}@{mechanism}"] = tomllib.loads(body + "\n" + plant)
     return out
 
 

@@ -180,6 +180,7 @@ def notes(record: dict) -> list[str]:
         if tests["pose_source"] and tests["mechanism"] else "Interaction tests: too few cells.",
         f"Tuning restarts that disagree (spread above 5 % of the best objective): "
         f"{_names(agree)}; optima on a box edge: {_names(edge)}.",
+        *_known(record),
         _paper(record),
         *_recovery(record),
         f"Cost: {record['cost']['runs']:,} evaluation runs, "
@@ -189,6 +190,21 @@ def notes(record: dict) -> list[str]:
         f" s; an arm tuned before is read back from its cache) on {record['cost']['engine']}.",
     ]
     return answer + extra
+
+
+def _known(record: dict) -> list[str]:
+    """The labelled upper bound: best adaptive against the fixed PID tuned per mechanism."""
+    k = record.get("known_pid")
+    if not k or not k["model"]:
+        return []
+    parts = []
+    for m, e in k["model"]["mechanisms"].items():
+        more = [p for p, d in k["divergence"].items() if m in d and d[m]["p"] < 0.05
+                and d[m]["a_only"] > d[m]["b_only"]]  # fmt: skip
+        parts.append(f"{m} {e['ratio']:.3f} [{e['ratio_ci'][0]:.3f}, {e['ratio_ci'][1]:.3f}]"
+                     + (f" (the adaptive arm diverges more on the {', '.join(more)} pose)"
+                        if more else ""))
+    return [f"Upper bound ({k['label']}), ratio of both-stable RMSE: " + "; ".join(parts) + "."]
 
 
 def _recovery(record: dict) -> list[str]:

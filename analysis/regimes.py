@@ -59,12 +59,12 @@ LEVELS = {
                "mujoco": tuple(design.MUJOCO), "trajectories": design.TRAJECTORIES, "seeds": 20,
                "default_seeds": 6, "duration": None, "mujoco_seeds": 3, "mujoco_duration": None,
                "per_setting": 3, "train_seeds": (100,), "train_duration": 20.0, "training": 5,
-               "recovery_seeds": 10},
+               "recovery_seeds": 10, "known_pid": True},
     "full": {"arms": ARMS, "mechanisms": tuple(design.MECHANISMS),
              "mujoco": tuple(design.MUJOCO), "trajectories": design.TRAJECTORIES, "seeds": 20,
              "default_seeds": 20, "duration": None, "mujoco_seeds": 10, "mujoco_duration": None,
              "per_setting": 10, "train_seeds": (100, 101), "train_duration": 20.0,
-             "training": 5, "recovery_seeds": 20},
+             "training": 5, "recovery_seeds": 20, "known_pid": True},
 }  # fmt: skip
 
 
@@ -83,6 +83,22 @@ def _tune(d: dict, eng, store: Path) -> dict:
             for pose in POSES}  # fmt: skip
 
 
+def _known_pid(d: dict, eng, store: Path) -> dict:
+    """The fixed PID tuned per mechanism on each pose source (the labelled upper bound of what
+    knowing the robot buys): the training trajectories on that mechanism's plant, the same
+    budget rule."""
+    budget = tuning.Budget(per_setting=d["per_setting"], seeds=tuple(d["train_seeds"]))
+    out: dict = {}
+    for pose in POSES:
+        for m in d["mechanisms"]:
+            a = tuning.Arm(f"pid-known-{m}@{pose}", "pid", tuning.FREE["pid"],
+                           {"estimator.pose_source": pose})  # fmt: skip
+            train = design.training_on(m, d["train_duration"])
+            out.setdefault(pose, {})[m] = tuning.tune_arm(a, train, budget, eng,
+                                                          cache=store / "tuning")  # fmt: skip
+    return out
+
+
 def _spec_text(name: str, files: list[str], seeds: int, pose: str, tables: dict | None,
                arms: tuple[str, ...], measures: tuple[str, ...] = ()) -> str:  # fmt: skip
     """A sweep spec: every arm on ``files``, the pose source and each arm's tuned settings as
@@ -97,7 +113,8 @@ def _spec_text(name: str, files: list[str], seeds: int, pose: str, tables: dict 
     return "\n".join(lines) + "\n"
 
 
-def _specs(d: dict, tuned: dict, folder: Path) -> list[tuple[str, str, Path]]:
+def _specs(d: dict, tuned: dict, folder: Path, known: dict | None = None
+           ) -> list[tuple[str, str, Path]]:  # fmt: skip
     """Write the scenario files and the specs; returns ``(level, pose, spec path)``."""
     folder.mkdir(parents=True, exist_ok=True)
     files, mj = [], []
@@ -121,6 +138,12 @@ def _specs(d: dict, tuned: dict, folder: Path) -> list[tuple[str, str, Path]]:
             p.write_text(_spec_text(f"regimes-{level}-{pose}", names, seeds, pose, tab,
                                     d["arms"]))  # fmt: skip
             out.append((level, pose, p))
+        for m, t in (known or {}).get(pose, {}).items():
+            names = [f for f in files if f.endswith(f"@{m}.toml")]
+            p = folder / f"known-pid-{m}-{pose}.toml"
+            p.write_text(_spec_text(f"regimes-known-pid-{m}-{pose}", names, d["seeds"], pose,
+                                    {"pid": t["table"]}, ("pid",)))  # fmt: skip
+            out.append((f"known-pid-{m}", pose, p))
         if events and d.get("recovery_seeds"):
             p = folder / f"recovery-{pose}.toml"
             p.write_text(_spec_text(f"regimes-recovery-{pose}", events, d["recovery_seeds"], pose,
@@ -173,6 +196,8 @@ def _frame(done: list[tuple[str, str, Path]], store: Path):
     for level, pose, p in done:
         if level == "recovery":
             continue
+        if level.startswith("known-pid"):
+            level = "known-pid"
         rows = sweep.read_rows(store / p.stem).to_pandas().sort_values("job_id", kind="stable")
         rows = rows[["scenario", "controller", "seed", "tail_position", "effort", "diverged",
                      "status"]].copy()  # fmt: skip
@@ -230,8 +255,9 @@ def compute(out, level: str, workers: int | None = None) -> dict:
     manifests = []
     with engine(workers) as eng:
         tuned = _tune(d, eng, store)
+        known = _known_pid(d, eng, store) if d.get("known_pid") else None
         t_tune = time.perf_counter() - t0
-        done = _specs(d, tuned, store / "specs")
+        done = _specs(d, tuned, store / "specs", known)
         for _, _, p in done:
             manifests.append(sweep.run_sweep(sweep.load_spec(p), store / p.stem, progress=None,
                                              stale="set-aside", eng=eng))  # fmt: skip
@@ -239,6 +265,8 @@ def compute(out, level: str, workers: int | None = None) -> dict:
     rows = _frame(done, store)
     record = analyse(rows, tuned)
     record["recovery"] = _recovery(done, store, tuned)
+    if known:
+        record["known_pid"] = _known(rows, tuned, known)
     record.update(level=level, design={k: (list(v) if isinstance(v, tuple) else v)
                                        for k, v in d.items()},
                   arms_run=_arm_entries(done),
@@ -265,6 +293,30 @@ def compute(out, level: str, workers: int | None = None) -> dict:
     common.write_record(out, STEM, record)
     common.write_table(out, STEM, table(record))
     return record
+
+
+def _known(rows, tuned: dict, known: dict) -> dict:
+    """Best adaptive arm (tuned once) against the fixed PID tuned per mechanism: the contrast
+    model on the both-stable pairs and each pose's paired divergence, per mechanism."""
+    key = ["pose", "mechanism", "trajectory", "seed"]
+    parts = []
+    for pose in POSES:
+        best = _best(tuned, pose, ADAPTIVE)
+        x = rows[(rows.level == "tuned") & (rows.pose == pose) & (rows.controller == best)]
+        y = rows[(rows.level == "known-pid") & (rows.pose == pose)]
+        parts.append(_join(x.set_index(key), y.set_index(key)))
+    import pandas as pd
+
+    p = pd.concat(parts, ignore_index=True)
+    div = {pose: {m: rstats.mcnemar(g.failed_a, g.failed_b)
+                  for m, g in p[p.pose == pose].groupby("mechanism", sort=False)}
+           for pose in POSES}  # fmt: skip
+    ok = p[~p.failed_a & ~p.failed_b].copy()
+    ok["delta"] = np.log(ok.tail_position_a) - np.log(ok.tail_position_b)
+    return {"label": "best adaptive arm (tuned once) - fixed PID tuned per mechanism (an upper "
+                     "bound of what knowing the robot buys a fixed PID)",
+            "tuning": known, "divergence": div,
+            "model": rstats.contrast_model(ok) if len(ok) > 2 else None}  # fmt: skip
 
 
 def _best(tuned: dict, pose: str, arms) -> str:
