@@ -1,481 +1,482 @@
-"""When does adaptation pay?  The regime study (issue 14).
+"""When does adaptation pay?  The regime study as a matched design (issue 22; DESIGN §7).
 
-A factorial over what the paper left unvaried, run through the sweep engine (``wmr.sweep``):
+1. **Matched arms**: every arm (the fixed PID, APID, IAPID-NN-DEKF, the oracle IAPID, BSC,
+   DA-NN, adaptive BSC) runs on the same pose, with the pose source a factor (``raw``: the
+   measurement; ``filtered``: the pose EKF's estimate, for every arm).  The paper's asymmetric
+   comparison (IAPID on the filtered pose against APID on the raw one) is a separate, labelled
+   row.  :func:`check` reads each arm's settings from the scenarios its runs were made from and
+   fails if a compared pair differs in anything but the compared factor
+   (``analysis._regimes_design.matched``).
+2. **Equal tuning** (``analysis.tuning``): each arm tuned once per pose source on training
+   plants and trajectories disjoint from the evaluation, with the same evaluations per free
+   setting; results at the tuned settings and at the defaults.
+3. **Mechanisms** and trajectories: ``analysis._regimes_design``.
+4. **Endpoints** and 5. **one model**: ``analysis._regimes_stats``.
 
-- the **plant mechanism** (``wmr.plant``): the ideal unicycle, a 20 % wheel-radius error,
-  unequal wheels, 100 ms actuator lag plus a 2-sample delay, an outward lateral skid in turns
-  (``slip``, DESIGN §3.3), and a payload on a lagged velocity loop (an inner velocity loop whose
-  ~50 ms lag grows to ~75 ms when the mass grows 50 % at 20 s) (the shipped ``lemniscate-*``
-  scenarios' plants);
-- the **SGD rate** as read by the step: mu in {0.9, 9} with the plant Jacobian per step or per
-  second (``jacobian_scale``), i.e. 1x, 10x, 100x and 1000x the paper's per-step reading;
-- the **initial PID gains**: good (the suite's default) or weak (a fifth of them);
-- the **pose-EKF process noise** (0.01, the default, or 0.003 per step);
-- the paper's three **trajectories**;
-
-with 20 seeds and common random numbers (a seed gives every arm the same noise), and six arms:
-the fixed PID, APID (SGD with the model Jacobian), IAPID-NN-DEKF, the oracle IAPID (its
-identifier trained on the true poses: what the estimation noise costs), backstepping and DA-NN.
-Nothing is tuned: every setting comes from the factorial.
-
-Outcome per run: the position RMSE after the initial transient (``t >= 5 s``); beside it the
-control effort, the recovery after the payload change or the disturbance, and the quality of
-the Jacobian the SGD step used against the true robot's one-step Jacobian (``wmr.measures``).
-Per cell (a combination of the factors): mean +- std of each arm; paired Wilcoxon tests of
-IAPID vs APID, APID vs the fixed PID, IAPID vs the fixed PID and the oracle vs IAPID, Holm-adjusted
-within the cell; TOST of IAPID vs APID at :data:`MARGIN`; a bootstrap interval of each tested
-difference; and the arm with the lowest mean.
+Runs: one sweep (``wmr.sweep``) per (settings level, pose source) over the mechanism x
+trajectory scenarios and every arm, the tuned settings as single-level factors; the MuJoCo
+robot in its own sweeps (fewer seeds, the lemniscate only: ~10x the cost per step).  Stores
+under the studies' cache folder (resumable; a store of other code is set aside).
 """
 
 from __future__ import annotations
 
-import itertools
-import math
+import json
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from analysis import common
-from wmr import controllers, stats, sweep
-from wmr import scenario as scn
+from analysis import _regimes_design as design
+from analysis import _regimes_report as report
+from analysis import _regimes_stats as rstats
+from analysis import common, tuning
+from wmr import sweep
 
-__all__ = ["STEM", "TITLE", "ARMS", "MECHANISMS", "MARGIN", "run", "check", "render", "table",
-           "cells"]  # fmt: skip
+__all__ = ["STEM", "TITLE", "ARMS", "LEVELS", "CONTRASTS", "run", "check", "render", "table",
+           "analyse"]  # fmt: skip
 
 STEM = "regimes"
-TITLE = "When does adaptation pay? Regimes of plant, learning rate, gains and noise"
-#: The arms, in table order; the PID family shares the factors of the SGD step.
-ARMS = ("pid", "adaptive-pid", "iapid-nn-dekf", "iapid-oracle", "backstepping", "adaptive-nn")
-PID_FAMILY = ARMS[:4]
-#: Plant mechanisms: the ``[plant]`` of each (the shipped lemniscate-* scenarios' plants): "slip"
-#: skids outward (``v_s = -slip v w``; the committed record's slip cells were run with the
-#: earlier inward sign, DESIGN §3.3), "payload" is a payload on a lagged velocity loop.
-MECHANISMS = {
-    "ideal": "",
-    "wheel-radius": "[plant]\nv_gain = 0.8\nw_gain = 0.8\n",
-    "wheel-asymmetry": "[plant]\nv_from_w = 0.0075\nw_from_v = 0.3333333333333333\n",
-    "lag-delay": "[plant]\nactuator_tau = 0.1\ndelay_steps = 2\n",
-    "slip": "[plant]\nslip = 0.1\n",
-    "payload": ('[plant]\nmodel = "lagged-velocity"\n[plant.lagged-velocity]\nmass = 10.0\n'
-                "inertia = 0.5\n"
-                "friction = [0.5, 0.02]\n[[plant.change]]\nat = 20.0\nmass = 15.0\n"
-                "inertia = 0.75\n"),
+TITLE = "When does adaptation pay? A matched design with equal tuning"
+#: The arms (the tuning stage's controllers), in table order.
+ARMS = tuning.ARMS
+FIXED = ("pid", "backstepping")
+ADAPTIVE = ("adaptive-pid", "iapid-nn-dekf", "adaptive-nn", "adaptive-bsc")
+POSES = ("raw", "filtered")
+#: The contrasts of the model (a, b): "best-adaptive" / "best-fixed" are chosen per pose source
+#: by the tuning objective on the training set (not by the evaluation).
+CONTRASTS = (("iapid-nn-dekf", "adaptive-pid"), ("adaptive-pid", "pid"),
+             ("best-adaptive", "best-fixed"), ("iapid-oracle", "iapid-nn-dekf"))  # fmt: skip
+#: Study levels: the quick one (make test), the committed record's, the full design.
+LEVELS = {
+    "quick": {"arms": ("pid", "adaptive-pid", "iapid-nn-dekf", "iapid-oracle", "backstepping"),
+              "mechanisms": ("ideal", "lag-delay"), "mujoco": (), "trajectories": ("sinusoid",),
+              "seeds": 3, "default_seeds": 3, "duration": 7.0, "mujoco_seeds": 0,
+              "mujoco_duration": None, "per_setting": 1, "train_seeds": (100,),
+              "train_duration": 3.0, "training": 1},
+    "record": {"arms": ARMS, "mechanisms": tuple(design.MECHANISMS),
+               "mujoco": tuple(design.MUJOCO), "trajectories": design.TRAJECTORIES, "seeds": 20,
+               "default_seeds": 6, "duration": None, "mujoco_seeds": 3, "mujoco_duration": None,
+               "per_setting": 3, "train_seeds": (100,), "train_duration": 20.0, "training": 5,
+               "recovery_seeds": 10, "known_pid": True},
+    "full": {"arms": ARMS, "mechanisms": tuple(design.MECHANISMS),
+             "mujoco": tuple(design.MUJOCO), "trajectories": design.TRAJECTORIES, "seeds": 20,
+             "default_seeds": 20, "duration": None, "mujoco_seeds": 10, "mujoco_duration": None,
+             "per_setting": 10, "train_seeds": (100, 101), "train_duration": 20.0,
+             "training": 5, "recovery_seeds": 20, "known_pid": True},
 }  # fmt: skip
-#: The SGD rate readings: (label, mu, jacobian_scale); "x1" is the paper's per-step reading.
-RATES = (("x1", 0.9, "step"), ("x10", 9.0, "step"), ("x100", 0.9, "second"),
-         ("x1000", 9.0, "second"))  # fmt: skip
-#: Initial PID gains (Kpv, Kiv, Kdv, Kpw, Kiw, Kdw): the default, and a fifth of it.
-GAINS = {"good": (5.0, 5.0, 0.0, 10.0, 2.0, 0.0), "weak": (1.0, 1.0, 0.0, 2.0, 0.4, 0.0)}
-PROCESS_STD = (0.01, 0.003)
-SEEDS = 20
-#: The outcome given to a diverged run [m]: the scenarios' divergence bound (its error exceeded it).
-DIVERGED = 10.0
-#: Equivalence margin of IAPID vs APID on the after-transient position RMSE [m].
-MARGIN = 1e-3
-ALPHA = 0.05
-#: The tested pairs of a cell: (a, b); the difference is a - b (negative: a is better).
-PAIRS = (("iapid-nn-dekf", "adaptive-pid"), ("adaptive-pid", "pid"), ("iapid-nn-dekf", "pid"),
-         ("iapid-oracle", "iapid-nn-dekf"))  # fmt: skip
-CELL_KEYS = ("mechanism", "trajectory", "rate", "gains", "process_std")
 
 
-def _design(quick: bool) -> dict:
-    if quick:
-        return {"mechanisms": ("ideal", "wheel-radius"), "trajectories": ("sinusoid",),
-                "rates": RATES, "gains": ("good", "weak"), "process_std": PROCESS_STD[:1],
-                "seeds": 3, "duration": 8.0}  # fmt: skip
-    return {"mechanisms": tuple(MECHANISMS), "trajectories": scn.PAPER_SCENARIOS,
-            "rates": RATES, "gains": tuple(GAINS), "process_std": PROCESS_STD,
-            "seeds": SEEDS, "duration": None}  # fmt: skip
-
-
-def _write_specs(folder: Path, d: dict) -> tuple[Path, Path]:
-    """The scenario files (trajectory x mechanism) and the two specs: the PID family over the
-    SGD and noise factors, and backstepping and DA-NN (which use neither)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    names = []
-    for traj, mech in itertools.product(d["trajectories"], d["mechanisms"]):
-        text = scn.builtin(traj).read_text().replace(f'name = "{traj}"', f'name = "{traj}@{mech}"')
-        if d["duration"]:
-            text = text.replace("duration = 40.0", f"duration = {d['duration']}")
-        (folder / f"{traj}@{mech}.toml").write_text(text + "\n" + MECHANISMS[mech])
-        names.append(f"{traj}@{mech}.toml")
-    head = (f'scenarios = {names}\nseeds = {d["seeds"]}\nmeasures = ["jacobian", "recovery"]\n')
-    rates = [r for r in d["rates"]]
-    family = (f'name = "regimes-pid-family"\ncontrollers = {list(PID_FAMILY)}\n{head}'
-              '[design]\nkind = "grid"\n[factors]\n'
-              f'"controllers.*.mu" = {sorted({r[1] for r in rates})}\n'
-              f'"controllers.*.jacobian_scale" = {sorted({r[2] for r in rates})}\n'
-              f'"controllers.*.gains" = {[list(GAINS[g]) for g in d["gains"]]}\n'
-              f'"estimator.process_std" = {list(d["process_std"])}\n')  # fmt: skip
-    others = (f'name = "regimes-others"\ncontrollers = ["backstepping", "adaptive-nn"]\n{head}')
-    (folder / "family.toml").write_text(family.replace("'", '"'))
-    (folder / "others.toml").write_text(others.replace("'", '"'))
-    return folder / "family.toml", folder / "others.toml"
-
-
-def _store(out: Path, quick: bool) -> Path:
-    """Where the sweeps' stores live: beside nothing that is committed (the studies' folder's
-    ``regimes/``); an interrupted study resumes, a store of another design or of other code is
-    set aside and rebuilt (``wmr.engine.sweeps``)."""
+def _store(out: Path, level: str) -> Path:
     from wmr.engine.store import studies_folder
 
-    return Path(out) / ".regimes-store" if quick else studies_folder() / STEM
+    return Path(out) / ".regimes-store" if level == "quick" else studies_folder() / STEM / level
 
 
-def _frame(stores: list[Path], d: dict):
-    """Both stores' rows as one DataFrame with the cell columns."""
-    import pandas as pd
-
-    # in job order (a store's shards follow completion order): the cells in the design's order
-    rows = pd.concat([sweep.read_rows(s).to_pandas().sort_values("job_id", kind="stable")
-                      for s in stores], ignore_index=True)  # fmt: skip
-    parts = rows.scenario.str.split("@", expand=True)
-    rows["trajectory"], rows["mechanism"] = parts[0], parts[1]
-    by_rate = {(m, s): label for label, m, s in RATES}
-    fam = rows.controller.isin(PID_FAMILY)
-    rows["rate"] = "-"
-    rows.loc[fam, "rate"] = [by_rate[(m, s)] for m, s in zip(
-        rows.loc[fam, "controllers.*.mu"], rows.loc[fam, "controllers.*.jacobian_scale"],
-        strict=True)]  # fmt: skip
-    gains = {str(tuple(v)): k for k, v in GAINS.items()}
-    rows["gains"] = rows["controllers.*.gains"].map(gains).fillna("-")
-    rows["process_std"] = rows["estimator.process_std"].fillna(-1.0)
-    return rows
+def _tune(d: dict, eng, store: Path) -> dict:
+    """Every arm tuned on each pose source (``analysis.tuning``), resumable arm by arm."""
+    training = design.training_documents(d["train_duration"], d["training"])
+    budget = tuning.Budget(per_setting=d["per_setting"], seeds=tuple(d["train_seeds"]))
+    return {pose: {c: tuning.tune_arm(tuning.arm(c, pose), training, budget, eng,
+                                      cache=store / "tuning") for c in d["arms"]}
+            for pose in POSES}  # fmt: skip
 
 
-def _cell(rows, others, key: dict, seeds: int) -> dict:
-    """One cell's record: each arm's outcomes over the seeds and the tested differences."""
-    ok = rows[(rows.status == "ok")]
-    arms = {c: ok[ok.controller == c].sort_values("seed") for c in PID_FAMILY}
-    base = others[(others.mechanism == key["mechanism"])
-                  & (others.trajectory == key["trajectory"])]  # fmt: skip
-    for c in ("backstepping", "adaptive-nn"):
-        arms[c] = base[(base.controller == c) & (base.status == "ok")].sort_values("seed")
-    rec = {**key, "arms": {}}
-    for c, a in arms.items():
-        rec["arms"][c] = {
-            "n": int(len(a)), "diverged": int(a.diverged.sum()),
-            "tail_mean": _num(a.tail_position.mean()), "tail_std": _num(a.tail_position.std()),
-            "tail_median_with_diverged": _num(a.tail_position.where(~a.diverged, DIVERGED)
-                                              .median()),
-            "effort_mean": _num(a.effort.mean()),
-            "recovery_mean": _num(a.recovery_rmse.mean()),
-            **({"jac_rel_error_median": _num(a.jac_rel_error.median()),
-                "jac_norm_ratio_median": _num(a.jac_norm_ratio.median()),
-                "jac_sign_v_mean": _num(a.jac_sign_v.mean()),
-                "jac_sign_w_mean": _num(a.jac_sign_w.mean())}
-               if c in ("adaptive-pid", "iapid-nn-dekf", "iapid-oracle") else {}),
-        }  # fmt: skip
-    # a diverged run counts with the divergence bound as its error: worse than every run that
-    # stayed within it (the rank tests do not depend on the value; TOST cannot call it equal)
-    series = {c: a.set_index("seed").tail_position.where(~a.set_index("seed").diverged,
-                                                         DIVERGED).reindex(range(seeds))
-              .to_numpy() for c, a in arms.items()}  # fmt: skip
-    tests, pvalues = {}, []
-    for a, b in PAIRS:
-        d = series[a] - series[b]
-        p = stats.wilcoxon(d) if np.sum(np.isfinite(d) & (d != 0)) else 1.0
-        pvalues.append(p)
-        lo, hi = stats.bootstrap_mean_diff_ci(series[a], series[b], seed=0)
-        tests[f"{a} - {b}"] = {"mean_diff": _num(np.nanmean(d)), "ci_low": lo, "ci_high": hi,
-                               "rel_diff": _num(np.nanmean(d) / np.nanmean(series[b])),
-                               "p": p}  # fmt: skip
-    for t, q in zip(tests.values(), stats.holm(pvalues), strict=True):
-        t["p_holm"] = q
-        t["significant"] = bool(q < ALPHA)
-    eq = stats.tost(series["iapid-nn-dekf"], series["adaptive-pid"], MARGIN, ALPHA)
-    rec["tests"] = tests
-    rec["tost_iapid_apid"] = eq.to_json()
-    means = {c: np.nanmean(series[c]) for c in ARMS}
-    rec["best"] = min(means, key=means.get)
-    return rec
-
-
-def _num(x) -> float | None:
-    return None if x is None or not math.isfinite(float(x)) else float(x)
-
-
-def cells(rows, d: dict) -> list[dict]:
-    """Every cell of the design (the PID family's factors x mechanism x trajectory)."""
-    fam = rows[rows.controller.isin(PID_FAMILY)]
-    others = rows[~rows.controller.isin(PID_FAMILY)]
-    out = []
-    for key, group in fam.groupby(list(CELL_KEYS), sort=False):
-        out.append(_cell(group, others, dict(zip(CELL_KEYS, key, strict=True)), d["seeds"]))
+def _known_pid(d: dict, eng, store: Path) -> dict:
+    """The fixed PID tuned per mechanism on each pose source (the labelled upper bound of what
+    knowing the robot buys): the training trajectories on that mechanism's plant, the same
+    budget rule."""
+    budget = tuning.Budget(per_setting=d["per_setting"], seeds=tuple(d["train_seeds"]))
+    out: dict = {}
+    for pose in POSES:
+        for m in d["mechanisms"]:
+            a = tuning.Arm(f"pid-known-{m}@{pose}", "pid", tuning.FREE["pid"],
+                           {"estimator.pose_source": pose})  # fmt: skip
+            train = design.training_on(m, d["train_duration"])
+            out.setdefault(pose, {})[m] = tuning.tune_arm(a, train, budget, eng,
+                                                          cache=store / "tuning")  # fmt: skip
     return out
 
 
-def classify(c: dict) -> str:
-    """IAPID vs APID in cell ``c``: ``"equivalent"`` when TOST puts the mean difference within
-    the margin (a real but sub-margin difference is still "the same" in practice), else
-    ``"better"`` / ``"worse"`` when the Holm-adjusted Wilcoxon test is significant, else
-    ``"undecided"``."""
-    t = c["tests"]["iapid-nn-dekf - adaptive-pid"]
-    if c["tost_iapid_apid"]["equivalent"]:
-        return "equivalent"
-    if t["significant"]:
-        return "better" if t["mean_diff"] < 0 else "worse"
-    return "undecided"
+def _spec_text(name: str, files: list[str], seeds: int, pose: str, tables: dict | None,
+               arms: tuple[str, ...], measures: tuple[str, ...] = ()) -> str:  # fmt: skip
+    """A sweep spec: every arm on ``files``, the pose source and each arm's tuned settings as
+    single-level factors (JSON values are TOML values here); ``measures`` (``wmr.measures``)."""
+    lines = [f'name = "{name}"', f"scenarios = {json.dumps(files)}",
+             f"controllers = {json.dumps(list(arms))}", f"seeds = {seeds}",
+             *([f"measures = {json.dumps(list(measures))}"] if measures else []), "[design]",
+             'kind = "grid"', "[factors]", f'"estimator.pose_source" = ["{pose}"]']  # fmt: skip
+    for c, table in (tables or {}).items():
+        for key, value in table.items():
+            lines.append(f'"controllers.{c}.{key}" = [{json.dumps(value)}]')
+    return "\n".join(lines) + "\n"
 
 
-def verdict(cs: list[dict]) -> dict:
-    """Counts over the cells: IAPID vs APID (:func:`classify`), APID vs the fixed PID, IAPID vs
-    the fixed PID, the oracle vs IAPID, and where each arm has the lowest mean."""
-    v = dict.fromkeys(("iapid_better_than_apid", "iapid_equivalent_to_apid",
-                       "iapid_worse_than_apid", "undecided", "apid_better_than_pid",
-                       "apid_worse_than_pid", "iapid_better_than_pid", "oracle_better_than_iapid",
-                       "oracle_worse_than_iapid"), 0)  # fmt: skip
-    names = {"better": "iapid_better_than_apid", "equivalent": "iapid_equivalent_to_apid",
-             "worse": "iapid_worse_than_apid", "undecided": "undecided"}  # fmt: skip
-    for c in cs:
-        v[names[classify(c)]] += 1
-        for key, name in (("adaptive-pid - pid", "apid_{}_pid"), ("iapid-nn-dekf - pid",
-                                                                   "iapid_{}_pid"),
-                          ("iapid-oracle - iapid-nn-dekf", "oracle_{}_iapid")):  # fmt: skip
-            t = c["tests"][key]
-            if t["significant"]:
-                word = "better_than" if t["mean_diff"] < 0 else "worse_than"
-                if name.format(word) in v:
-                    v[name.format(word)] += 1
-    v["cells"] = len(cs)
-    v["best_arm"] = {a: sum(c["best"] == a for c in cs) for a in ARMS}
-    return v
+def _specs(d: dict, tuned: dict, folder: Path, known: dict | None = None
+           ) -> list[tuple[str, str, Path]]:  # fmt: skip
+    """Write the scenario files and the specs; returns ``(level, pose, spec path)``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    files, mj = [], []
+    for t in d["trajectories"]:
+        for m in d["mechanisms"]:
+            (folder / f"{t}@{m}.toml").write_text(design.evaluation_text(t, m, d["duration"]))
+            files.append(f"{t}@{m}.toml")
+    for m in d["mujoco"]:
+        (folder / f"lemniscate@{m}.toml").write_text(
+            design.evaluation_text("lemniscate", m, d["mujoco_duration"]))
+        mj.append(f"lemniscate@{m}.toml")
+    events = [f for f in files if "@lagged-velocity-change" in f or "sinusoid-perturbed@" in f]
+    out = []
+    for pose in POSES:
+        tables = {c: tuned[pose][c]["table"] for c in d["arms"]}
+        runs = [("tuned", files, d["seeds"], tables), ("default", files, d["default_seeds"], None)]
+        if mj:
+            runs.append(("tuned-mujoco", mj, d["mujoco_seeds"], tables))
+        for level, names, seeds, tab in runs:
+            p = folder / f"{level}-{pose}.toml"
+            p.write_text(_spec_text(f"regimes-{level}-{pose}", names, seeds, pose, tab,
+                                    d["arms"]))  # fmt: skip
+            out.append((level, pose, p))
+        for m, t in (known or {}).get(pose, {}).items():
+            names = [f for f in files if f.endswith(f"@{m}.toml")]
+            p = folder / f"known-pid-{m}-{pose}.toml"
+            p.write_text(_spec_text(f"regimes-known-pid-{m}-{pose}", names, d["seeds"], pose,
+                                    {"pid": t["table"]}, ("pid",)))  # fmt: skip
+            out.append((f"known-pid-{m}", pose, p))
+        if events and d.get("recovery_seeds"):
+            p = folder / f"recovery-{pose}.toml"
+            p.write_text(_spec_text(f"regimes-recovery-{pose}", events, d["recovery_seeds"], pose,
+                                    tables, d["arms"], ("recovery",)))  # fmt: skip
+            out.append(("recovery", pose, p))
+    return out
 
 
-def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
-    """Run both sweeps (resuming their stores), compute the cells and the verdict, write the
-    record, table and figure."""
-    d = _design(quick)
-    store = _store(Path(out), quick)
-    family, others = _write_specs(store / "specs", d)
+def _recovery(done: list[tuple[str, str, Path]], store: Path, tuned: dict) -> dict | None:
+    """Recovery after the run's first event (``wmr.measures``: the position RMSE over the 5 s
+    after the plant change or the disturbance's start), tuned settings: per pose source,
+    scenario and arm the mean over the stable runs with their count, and each contrast's
+    paired difference on the both-stable pairs (:func:`analysis._regimes_stats.pair_rmse`)."""
+    specs = [(pose, p) for level, pose, p in done if level == "recovery"]
+    if not specs:
+        return None
+    out: dict = {"window_s": 5.0, "poses": {}}
+    for pose, p in specs:
+        rows = sweep.read_rows(store / p.stem).to_pandas().sort_values("job_id", kind="stable")
+        rows["failed"] = rows.diverged | (rows.status != "ok")
+        rows["tail_position"] = rows.recovery_rmse  # the pairs' statistic is the recovery RMSE
+        rows["pose"], rows["level"] = pose, "recovery"
+        sp = rows.scenario.str.split("@", expand=True)
+        rows["trajectory"], rows["mechanism"] = sp[0], sp[1]
+        best = {"best-adaptive": _best(tuned, pose, ADAPTIVE), "best-fixed": _best(tuned, pose,
+                                                                                   FIXED)}
+        rec: dict = {"arms": {}, "contrasts": {}}
+        for (sc, c), g in rows.groupby(["scenario", "controller"], sort=False):
+            ok = g.recovery_rmse[~g.failed]
+            rec["arms"].setdefault(sc, {})[c] = {"n_stable": int(len(ok)), "n": int(len(g)),
+                                                 "mean": float(ok.mean()) if len(ok) else None}
+        for a, b in CONTRASTS:
+            ca, cb = best.get(a, a), best.get(b, b)
+            if ca not in set(rows.controller) or cb not in set(rows.controller):
+                continue
+            key = ["scenario", "seed"]
+            j = _join(rows[rows.controller == ca].set_index(key),
+                      rows[rows.controller == cb].set_index(key))
+            rec["contrasts"][f"{a} - {b}"] = {
+                sc: rstats.pair_rmse(g.tail_position_a, g.failed_a, g.tail_position_b,
+                                     g.failed_b) for sc, g in j.groupby("scenario", sort=False)}
+        out["poses"][pose] = rec
+    return out
+
+
+def _frame(done: list[tuple[str, str, Path]], store: Path):
+    import pandas as pd
+
+    parts = []
+    for level, pose, p in done:
+        if level == "recovery":
+            continue
+        if level.startswith("known-pid"):
+            level = "known-pid"
+        rows = sweep.read_rows(store / p.stem).to_pandas().sort_values("job_id", kind="stable")
+        rows = rows[["scenario", "controller", "seed", "tail_position", "effort", "diverged",
+                     "status"]].copy()  # fmt: skip
+        rows["level"] = level.replace("-mujoco", "")
+        rows["pose"] = pose
+        parts.append(rows)
+    rows = pd.concat(parts, ignore_index=True)
+    sp = rows.scenario.str.split("@", expand=True)
+    rows["trajectory"], rows["mechanism"] = sp[0], sp[1]
+    rows["failed"] = rows.diverged | (rows.status != "ok")
+    return rows
+
+
+def _arm_entries(done: list[tuple[str, str, Path]]) -> dict:
+    """Each arm's settings as read from the scenarios its runs were made from (the specs'
+    validated scenarios: what ``wmr.engine`` ran)."""
+    out: dict = {}
+    for level, pose, p in done:
+        spec = sweep.load_spec(p)
+        for c in spec.controllers:
+            runs = {sc.name: sc for sc in spec.runs[0]}
+            out.setdefault(level, {}).setdefault(pose, {})[c] = design.arm_entry(runs, c)
+    return out
+
+
+#: The repository's results (the committed record).
+COMMITTED = Path(__file__).resolve().parent.parent / "paper"
+
+
+def run(out, *, quick: bool = False, workers: int | None = None, level: str | None = None
+        ) -> dict:  # fmt: skip
+    """The study into ``out`` at ``level`` (:data:`LEVELS`; ``quick``: the quick one): tune,
+    run the sweeps (resuming their stores), analyse, write record, table and figures.  With
+    neither, a record in ``out`` or the repository's committed one is re-rendered (``wmr
+    reproduce`` stays short); only without any record is the ``record`` level computed."""
+    if level is None and not quick:
+        for base in (Path(out), COMMITTED):
+            rec = common.load_record(base, STEM)
+            if rec and rec.get("level") in LEVELS and "arms_run" in rec:
+                rec["figures"] = [common.save_figure(out, f"{STEM}_contrasts.png",
+                                                     report.figure(rec))]  # fmt: skip
+                common.write_record(out, STEM, rec)
+                common.write_table(out, STEM, table(rec))
+                return rec
+    return compute(out, level or ("quick" if quick else "record"), workers)
+
+
+def compute(out, level: str, workers: int | None = None) -> dict:
+    """Tune, run, analyse and write the study at ``level``."""
+    from wmr.engine import engine
+
+    d = LEVELS[level]
+    store = _store(Path(out), level)
     t0 = time.perf_counter()
-    manifests = [sweep.run_sweep(sweep.load_spec(p), store / p.stem, workers=workers,
-                                 progress=None, stale="set-aside")
-                 for p in (family, others)]  # fmt: skip
+    manifests = []
+    with engine(workers) as eng:
+        tuned = _tune(d, eng, store)
+        known = _known_pid(d, eng, store) if d.get("known_pid") else None
+        t_tune = time.perf_counter() - t0
+        done = _specs(d, tuned, store / "specs", known)
+        for _, _, p in done:
+            manifests.append(sweep.run_sweep(sweep.load_spec(p), store / p.stem, progress=None,
+                                             stale="set-aside", eng=eng))  # fmt: skip
     seconds = time.perf_counter() - t0
-    rows = _frame([store / "family", store / "others"], d)
-    cs = cells(rows, d)
-    record = {
-        "factors": {"mechanism": list(d["mechanisms"]), "trajectory": list(d["trajectories"]),
-                    "rate": [r[0] for r in d["rates"]], "gains": list(d["gains"]),
-                    "process_std": list(d["process_std"])},
-        "rates": {label: {"mu": mu, "jacobian_scale": s} for label, mu, s in d["rates"]},
-        "gain_sets": {g: list(GAINS[g]) for g in d["gains"]},
-        "arms": list(ARMS), "seeds": d["seeds"], "outcome": "tail_position", "margin": MARGIN,
-        "alpha": ALPHA, "quick": quick, "cells": cs, "verdict": verdict(cs),
-        "cost": {"runs": int(sum(m["jobs"] for m in manifests)),
-                 "runs_this_time": int(sum(m["runs_this_time"] for m in manifests)),
-                 "seconds": seconds,
-                 "run_seconds_total": float(sum(m["run_seconds_total"] for m in manifests)),
-                 "engine": manifests[0]["engine"],
-                 "workers": manifests[0]["workers"]},
-    }  # fmt: skip
-    record["figures"] = [common.save_figure(out, f"{STEM}_map.png", _figure(record))]
+    rows = _frame(done, store)
+    record = analyse(rows, tuned)
+    record["recovery"] = _recovery(done, store, tuned)
+    if known:
+        record["known_pid"] = _known(rows, tuned, known)
+    record.update(level=level, design={k: (list(v) if isinstance(v, tuple) else v)
+                                       for k, v in d.items()},
+                  arms_run=_arm_entries(done),
+                  tuning={"budget": {"per_setting": d["per_setting"], "restarts": 2,
+                                     "train_seeds": list(d["train_seeds"]),
+                                     "training": list(design.training_documents(
+                                         d["train_duration"], d["training"])),
+                                     "train_duration": d["train_duration"],
+                                     "objective": f"mean of r / (r + {tuning.RMSE_SCALE} m) over"
+                                                  " the training runs; a diverged run scores "
+                                                  f"{tuning.DIVERGED_SCORE:g}",
+                                     "optimiser": "CMA-ES (cma), default population, seeds 0 "
+                                                  "and 1, restart 0 from the defaults"},
+                          "arms": tuned},
+                  cost={"runs": int(sum(m["jobs"] for m in manifests)),
+                        "runs_this_time": int(sum(m["runs_this_time"] for m in manifests)),
+                        "run_seconds_total": float(sum(m["run_seconds_total"]
+                                                       for m in manifests)),
+                        "seconds": seconds, "tuning_seconds": t_tune,
+                        "engine": manifests[0]["engine"], "workers": manifests[0]["workers"]})
+    record["verdict"] = report.verdicts(record)
+    record["figures"] = [common.save_figure(out, f"{STEM}_contrasts.png",
+                                            report.figure(record))]  # fmt: skip
     common.write_record(out, STEM, record)
     common.write_table(out, STEM, table(record))
     return record
 
 
-def check(record: dict) -> None:
-    """The record is whole and its statistics consistent: every cell has every arm over every
-    seed (diverged runs counted), the verdict's counts add up to the cells, and a TOST verdict
-    of equivalence has its interval inside the margin."""
-    v, n = record["verdict"], record["seeds"]
-    assert v["cells"] == len(record["cells"]) > 0
-    assert (v["iapid_better_than_apid"] + v["iapid_equivalent_to_apid"]
-            + v["iapid_worse_than_apid"] + v["undecided"]) == v["cells"], v  # fmt: skip
-    assert sum(v["best_arm"].values()) == v["cells"]
-    for c in record["cells"]:
-        for arm in record["arms"]:
-            a = c["arms"][arm]
-            assert a["n"] + 0 == n or a["diverged"] > 0, (c["mechanism"], arm, a)
-        t = c["tost_iapid_apid"]
-        if t["equivalent"]:
-            assert -t["delta"] < t["ci_low"] <= t["ci_high"] < t["delta"], t
-        for test in c["tests"].values():
-            assert 0.0 <= test["p"] <= test["p_holm"] <= 1.0, test
-
-
-# ---------------------------------------------------------------------------------------------
-# Prose, table, figure (from the record only)
-
-
-def _pct(x) -> str:
-    return "—" if x is None else f"{100 * x:+.1f} %"
-
-
-def _median(xs) -> float | None:
-    xs = [x for x in xs if x is not None]
-    return float(np.median(xs)) if xs else None
-
-
-def table(record: dict) -> str:
-    """Per mechanism and rate reading: the cells where IAPID beats APID, the PID, and the mean
-    relative differences (``tables/regimes.md``)."""
-    rows = []
-    cs = record["cells"]
-    for mech in record["factors"]["mechanism"]:
-        for rate in record["factors"]["rate"]:
-            sel = [c for c in cs if c["mechanism"] == mech and c["rate"] == rate]
-            kinds = [classify(c) for c in sel]
-            ap = [c["tests"]["adaptive-pid - pid"] for c in sel]
-            rows.append([
-                mech, rate, len(sel), kinds.count("better"), kinds.count("equivalent"),
-                kinds.count("worse"), kinds.count("undecided"),
-                _pct(_median(c["tests"]["iapid-nn-dekf - adaptive-pid"]["rel_diff"] for c in sel)),
-                sum(t["significant"] and t["mean_diff"] < 0 for t in ap),
-                _pct(_median(t["rel_diff"] for t in ap)),
-                ", ".join(sorted({controllers.label(c["best"]) for c in sel})),
-            ])  # fmt: skip
-    header = ["mechanism", "SGD rate", "cells", "IAPID < APID", "IAPID ≡ APID", "IAPID > APID",
-              "undecided", "IAPID vs APID (median rel.)", "APID < PID",
-              "APID vs PID (median rel.)", "lowest mean"]  # fmt: skip
-    return "\n".join(common.md_table(header, rows)) + "\n"
-
-
-def _by(cs: list[dict], key: str) -> str:
-    """``"level n, ..."`` counts of the cells ``cs`` by factor ``key`` (in the factor's order)."""
-    import collections
-
-    n = collections.Counter(str(c[key]) for c in cs)
-    return ", ".join(f"{k} {v}" for k, v in n.items()) if n else "none"
-
-
-def _median_of(cs, arm: str, key: str) -> str:
-    return common.fmt(_median(c["arms"][arm].get(key) for c in cs), 3)
-
-
-def _where_each_arm_wins(cs: list[dict]) -> str:
-    """For each arm with the lowest mean somewhere: where (mechanisms, trajectories) and by how
-    much it leads the next arm (relative to that arm's mean: median and range over its cells;
-    paired tests with intervals exist for the PID family's pairs only, in the cell table)."""
+def _known(rows, tuned: dict, known: dict) -> dict:
+    """Best adaptive arm (tuned once) against the fixed PID tuned per mechanism: the contrast
+    model on the both-stable pairs and each pose's paired divergence, per mechanism."""
+    key = ["pose", "mechanism", "trajectory", "seed"]
     parts = []
-    for a in ARMS:
-        won = [c for c in cs if c["best"] == a]
-        if not won:
+    for pose in POSES:
+        best = _best(tuned, pose, ADAPTIVE)
+        x = rows[(rows.level == "tuned") & (rows.pose == pose) & (rows.controller == best)]
+        y = rows[(rows.level == "known-pid") & (rows.pose == pose)]
+        parts.append(_join(x.set_index(key), y.set_index(key)))
+    import pandas as pd
+
+    p = pd.concat(parts, ignore_index=True)
+    div = {pose: {m: rstats.mcnemar(g.failed_a, g.failed_b)
+                  for m, g in p[p.pose == pose].groupby("mechanism", sort=False)}
+           for pose in POSES}  # fmt: skip
+    ok = p[~p.failed_a & ~p.failed_b].copy()
+    ok["delta"] = np.log(ok.tail_position_a) - np.log(ok.tail_position_b)
+    return {"label": "best adaptive arm (tuned once) - fixed PID tuned per mechanism (an upper "
+                     "bound of what knowing the robot buys a fixed PID)",
+            "tuning": known, "divergence": div,
+            "model": rstats.contrast_model(ok) if len(ok) > 2 else None}  # fmt: skip
+
+
+def _best(tuned: dict, pose: str, arms) -> str:
+    """The arm of ``arms`` (those tuned) with the lowest training objective on ``pose``."""
+    return min((c for c in arms if c in tuned[pose]), key=lambda c: tuned[pose][c]["objective"])
+
+
+def _pairs_of(rows, a: str, b: str, best: dict):
+    """Both arms' runs aligned on (level, pose, mechanism, trajectory, seed)."""
+    key = ["level", "pose", "mechanism", "trajectory", "seed"]
+    parts = []
+    for pose in POSES:
+        ca = best[pose].get(a, a)
+        cb = best[pose].get(b, b)
+        x = rows[(rows.pose == pose) & (rows.controller == ca)].set_index(key)
+        y = rows[(rows.pose == pose) & (rows.controller == cb)].set_index(key)
+        parts.append(_join(x, y))
+    import pandas as pd
+
+    return pd.concat(parts, ignore_index=True)
+
+
+def _paper_pairs(rows):
+    """The paper's asymmetric arm: IAPID on the filtered pose against APID on the raw pose
+    (``pose_source = "paper"`` gives each exactly these poses), at the defaults."""
+    key = ["mechanism", "trajectory", "seed"]
+    r = rows[rows.level == "default"]
+    x = r[(r.pose == "filtered") & (r.controller == "iapid-nn-dekf")].set_index(key)
+    y = r[(r.pose == "raw") & (r.controller == "adaptive-pid")].set_index(key)
+    return _join(x, y)
+
+
+def _join(x, y):
+    """Runs of arm a (``x``) and arm b (``y``) on the same index: ``*_a`` and ``*_b`` columns."""
+    cols = ["tail_position", "failed"]
+    return x[cols].add_suffix("_a").join(y[cols].add_suffix("_b"), how="inner").reset_index()
+
+
+def _endpoints(p, mechs, trajs) -> dict:
+    """Per mechanism: paired divergence (McNemar over its trajectories and seeds) and the RMSE
+    on both-stable pairs per trajectory."""
+    out = {}
+    for m in mechs:
+        pm = p[p.mechanism == m]
+        if pm.empty:
             continue
-        leads = []
-        for c in won:
-            m = {b: x["tail_mean"] for b, x in c["arms"].items() if x["tail_mean"] is not None}
-            others = [x for b, x in m.items() if b != a]  # an arm that always diverged: none
-            if a in m and others:
-                leads.append(1.0 - m[a] / min(others))
-        lead = (f", ahead of the next arm by a median {100 * float(np.median(leads)):.1f} % of "
-                f"its mean (range {100 * min(leads):.1f}-{100 * max(leads):.1f} %)"
-                if leads else "")  # fmt: skip
-        parts.append(f"{controllers.label(a)} in {len(won)} cells (mechanism: "
-                     f"{_by(won, 'mechanism')}; trajectory: {_by(won, 'trajectory')}){lead}")
-    return "Where each arm has the lowest mean: " + "; ".join(parts) + "."
-
-
-def _cell_name(c: dict) -> str:
-    return (f"{c['mechanism']} / {c['trajectory']} / rate {c['rate']} / {c['gains']} gains / "
-            f"process noise {c['process_std']:g}")
-
-
-def notes(record: dict) -> list[str]:
-    """The answer, in sentences computed from the record."""
-    v, cs = record["verdict"], record["cells"]
-    ia, ap = "iapid-nn-dekf - adaptive-pid", "adaptive-pid - pid"
-    pays = [c for c in cs if classify(c) == "better" and c["tests"]["iapid-nn-dekf - pid"]
-            ["significant"] and c["tests"]["iapid-nn-dekf - pid"]["mean_diff"] < 0]  # fmt: skip
-    apid_div = [c for c in pays if c["arms"]["adaptive-pid"]["diverged"] > 0]
-    worse = [c for c in cs if classify(c) == "worse"]
-    out = [
-        f"{v['cells']} cells ({' x '.join(f'{len(x)} {k}' for k, x in record['factors'].items())}"
-        f"), {record['seeds']} seeds each with common random numbers; outcome: position RMSE "
-        f"after the transient (a diverged run counts as {DIVERGED:g} m); tests: paired Wilcoxon, "
-        f"Holm over the {len(PAIRS)} tested pairs of a cell (alpha {record['alpha']:g}), TOST of "
-        f"IAPID vs APID at ±{1e3 * record['margin']:g} mm.",
-        f"IAPID-NN-DEKF vs APID (the same PID and SGD, the identified instead of the model "
-        f"Jacobian): better in {v['iapid_better_than_apid']} cells, equivalent within the margin "
-        f"in {v['iapid_equivalent_to_apid']}, worse in {v['iapid_worse_than_apid']}, undecided in "
-        f"{v['undecided']}.",
-        f"The indirect scheme pays (IAPID significantly better than both APID and the fixed PID) "
-        f"in {len(pays)} of {v['cells']} cells; by mechanism: {_by(pays, 'mechanism')}; by SGD "
-        f"rate: {_by(pays, 'rate')}; by initial gains: {_by(pays, 'gains')}."
-        + (f"  In {len(apid_div)} of them APID diverged "
-           f"({sum(c['arms']['adaptive-pid']['diverged'] for c in apid_div)} of their "
-           f"{sum(c['arms']['adaptive-pid']['n'] for c in apid_div)} runs) and IAPID in "
-           f"none: there IAPID pays by staying stable where the model-Jacobian step does not."
-           if apid_div and all(c["arms"]["iapid-nn-dekf"]["diverged"] == 0 for c in apid_div)
-           else f"  In {len(apid_div)} of them APID diverged in some seeds." if apid_div
-           else ""),
-        f"Where IAPID is worse than APID ({len(worse)} cells), by SGD rate: {_by(worse, 'rate')}; "
-        f"median relative difference IAPID vs APID over those cells "
-        f"{_pct(_median(c['tests'][ia]['rel_diff'] for c in worse))}.",
-        f"Why, in the Jacobian the SGD step used against the true robot's one-step Jacobian "
-        f"(median over the cells where IAPID pays / where it is worse): relative error IAPID "
-        f"{_median_of(pays, 'iapid-nn-dekf', 'jac_rel_error_median')} / "
-        f"{_median_of(worse, 'iapid-nn-dekf', 'jac_rel_error_median')}, APID "
-        f"{_median_of(pays, 'adaptive-pid', 'jac_rel_error_median')} / "
-        f"{_median_of(worse, 'adaptive-pid', 'jac_rel_error_median')}; norm ratio of IAPID's "
-        f"Jacobian {_median_of(pays, 'iapid-nn-dekf', 'jac_norm_ratio_median')} / "
-        f"{_median_of(worse, 'iapid-nn-dekf', 'jac_norm_ratio_median')} (a norm ratio scales the "
-        "SGD step like the learning rate).",
-        f"APID vs the fixed PID: better in {v['apid_better_than_pid']} cells, worse in "
-        f"{v['apid_worse_than_pid']}; median relative difference by SGD rate: "
-        + ", ".join(f"{r} {_pct(_median(c['tests'][ap]['rel_diff'] for c in cs if c['rate'] == r))}"
-                    for r in record["factors"]["rate"]) + ".",
-        f"The oracle identifier (trained on the true poses) vs IAPID: better in "
-        f"{v['oracle_better_than_iapid']} cells, worse in {v['oracle_worse_than_iapid']}; its "
-        f"Jacobian's median relative error {_median_of(cs, 'iapid-oracle', 'jac_rel_error_median')}"
-        f" against IAPID's {_median_of(cs, 'iapid-nn-dekf', 'jac_rel_error_median')}.",
-        "Lowest mean per cell: " + ", ".join(f"{controllers.label(a)} {k}"
-                                             for a, k in v["best_arm"].items() if k) + ".",
-        _where_each_arm_wins(cs),
-    ]  # fmt: skip
-    stable = [c for c in pays if all(c["arms"][a]["diverged"] == 0
-                                     for a in ("iapid-nn-dekf", "adaptive-pid"))]
-    best = sorted(stable, key=lambda c: c["tests"][ia]["rel_diff"])[:3]
-    if best:
-        out.append("Largest gains of IAPID over APID where neither diverged: " + "; ".join(
-            f"{_cell_name(c)} ({_pct(t['rel_diff'])}, difference of the means "
-            f"{1e3 * t['mean_diff']:.2f} mm, 95 % CI [{1e3 * t['ci_low']:.2f}, "
-            f"{1e3 * t['ci_high']:.2f}] mm)"
-            for c, t in ((c, c["tests"][ia]) for c in best)) + ".")  # fmt: skip
-    c = record["cost"]
-    out.append(f"Cost: {c['runs']:,} runs in {c['run_seconds_total']:.0f} s of running over "
-               f"the invocations that filled the stores ({c['runs_this_time']:,} runs in the "
-               f"last, {c['seconds']:.0f} s in all) on {c['engine']}.")
+        out[m] = {"divergence": rstats.mcnemar(pm.failed_a, pm.failed_b), "trajectories": {}}
+        for t in trajs:
+            q = pm[pm.trajectory == t]
+            if not q.empty:
+                out[m]["trajectories"][t] = rstats.pair_rmse(
+                    q.tail_position_a, q.failed_a, q.tail_position_b, q.failed_b)
     return out
 
 
+def analyse(rows, tuned: dict) -> dict:
+    """The record's statistics from the rows and the tuning (see the module)."""
+    mechs = list(dict.fromkeys(rows.mechanism))
+    trajs = list(dict.fromkeys(rows.trajectory))
+    best = {pose: {"best-adaptive": _best(tuned, pose, ADAPTIVE),
+                   "best-fixed": _best(tuned, pose, FIXED)} for pose in POSES}
+    div = {}
+    for (lv, pose, m, c), g in rows.groupby(["level", "pose", "mechanism", "controller"],
+                                            sort=False):  # fmt: skip
+        eff = g.effort[~g.failed]
+        div.setdefault(lv, {}).setdefault(pose, {}).setdefault(m, {})[c] = {
+            **rstats.divergence(g.failed), "errors": int((g.status != "ok").sum()),
+            "effort_stable_mean": float(eff.mean()) if len(eff) else None}  # fmt: skip
+    contrasts = {}
+    for a, b in CONTRASTS:
+        p = _pairs_of(rows, a, b, best)
+        name = f"{a} - {b}"
+        contrasts[name] = {}
+        for lv in ("tuned", "default"):
+            pl = p[p.level == lv]
+            contrasts[name][lv] = {pose: _endpoints(pl[pl.pose == pose], mechs, trajs)
+                                   for pose in POSES}  # fmt: skip
+            ok = pl[~pl.failed_a & ~pl.failed_b & (pl.tail_position_a > 0)
+                    & (pl.tail_position_b > 0)].copy()  # fmt: skip
+            ok["delta"] = np.log(ok.tail_position_a) - np.log(ok.tail_position_b)
+            contrasts[name][lv]["model"] = rstats.contrast_model(ok) if len(ok) > 2 else None
+    pp = _paper_pairs(rows)
+    paper = {"label": "the paper's asymmetric arm: IAPID-NN-DEKF on the filtered pose vs APID on "
+                      "the raw pose, defaults", "endpoints": _endpoints(pp, mechs, trajs)}
+    return {"arms": list(tuned["raw"]), "poses": list(POSES), "mechanisms": mechs,
+            "trajectories": trajs,
+            "seeds": {lv: int(rows[rows.level == lv].seed.nunique()) for lv in
+                      ("tuned", "default")},
+            "best": best, "divergence": div, "contrasts": contrasts, "paper_arm": paper,
+            "margins": {"relative": rstats.REL_MARGIN, "absolute": rstats.ABS_MARGIN},
+            "alpha": rstats.ALPHA}  # fmt: skip
+
+
+def check(record: dict) -> None:
+    """The record's claims hold: every compared pair of arms ran matched (the same scenarios'
+    context, pose and shared settings but the compared factor and each arm's tuned settings),
+    each arm on the two pose sources differs only in the pose, the divergence counts add up,
+    no stable-pair statistic exists without stable pairs, and "equivalent" is never claimed
+    without them."""
+    free = {c: {f["key"].split(".")[2].split("[")[0].split(" ")[0] for f in t["free"]}
+            for c, t in record["tuning"]["arms"]["raw"].items()}  # fmt: skip
+    for level, by_pose in record["arms_run"].items():
+        for pose, arms in by_pose.items():
+            for a, b, factor in design.COMPARED:
+                if a not in arms or b not in arms:  # (the quick level has fewer arms)
+                    continue
+                allowed = free[a] | free[b] if level != "default" else set()
+                design.matched(arms[a], arms[b], allowed, factor)
+            assert all(e["filtered"] == (pose == "filtered") for e in arms.values()), pose
+        for c in by_pose["raw"]:
+            allowed = free[c] if level != "default" else set()
+            design.matched(by_pose["raw"][c], by_pose["filtered"][c], allowed, "pose")
+    for lv in record["divergence"].values():
+        for pose in lv.values():
+            for arms in pose.values():
+                for x in arms.values():
+                    assert 0 <= x["diverged"] <= x["n"] and x["errors"] == 0, x
+    for c in record["contrasts"].values():
+        for lv in ("tuned", "default"):
+            for pose in record["poses"]:
+                for m in c[lv][pose].values():
+                    for t in m["trajectories"].values():
+                        if t["n_stable"] == 0:
+                            assert t["mean_diff"] is None and not t["equivalent_rel"]
+                            assert not t["equivalent_abs"]
+    assert set(record["verdict"]["mechanisms"]) == set(record["mechanisms"])
+
+
+def table(record: dict) -> str:
+    return report.table(record)
+
+
 def render(record: dict) -> str:
-    return common.section(TITLE, notes(record), table(record), record["figures"])
+    return common.section(TITLE, report.notes(record), table(record), record["figures"])
 
 
-def _figure(record: dict):
-    """The regime map: for each cell the arm with the lowest mean (hatched when its lead over
-    the runner-up in IAPID-vs-APID terms is not significant)."""
-    import matplotlib.pyplot as plt
-    from matplotlib.colors import ListedColormap
+def main(argv: list[str] | None = None) -> int:
+    """``python -m analysis.regimes [--out DIR] [--level quick|record|full] [--workers N]``:
+    compute the study at that level (``make regimes``: full), check it, say where it went."""
+    import argparse
 
-    f = record["factors"]
-    rows = [(m, t) for m in f["mechanism"] for t in f["trajectory"]]
-    cols = [(r, g, p) for r in f["rate"] for g in f["gains"] for p in f["process_std"]]
-    grid = np.full((len(rows), len(cols)), np.nan)
-    for c in record["cells"]:
-        i = rows.index((c["mechanism"], c["trajectory"]))
-        j = cols.index((c["rate"], c["gains"], c["process_std"]))
-        grid[i, j] = ARMS.index(c["best"])
-    fig, ax = plt.subplots(figsize=(max(6, 0.45 * len(cols) + 3), max(3, 0.35 * len(rows) + 2)),
-                           layout="constrained")  # fmt: skip
-    cmap = ListedColormap([controllers.colour(a) for a in ARMS])
-    ax.imshow(grid, cmap=cmap, vmin=-0.5, vmax=len(ARMS) - 0.5, aspect="auto")
-    ax.set_yticks(range(len(rows)), [f"{m} / {t}" for m, t in rows], fontsize=7)
-    ax.set_xticks(range(len(cols)), [f"{r} {g} {p:g}" for r, g, p in cols], fontsize=7,
-                  rotation=90)  # fmt: skip
-    for a in ARMS:
-        ax.plot([], [], "s", color=controllers.colour(a), label=controllers.label(a))
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
-    ax.set_title("lowest mean after-transient position RMSE per cell "
-                 "(columns: SGD rate, initial gains, pose-EKF process noise)", fontsize=9)
-    return fig
+    import matplotlib
+
+    matplotlib.use("Agg")
+    parser = argparse.ArgumentParser(prog="python -m analysis.regimes", description=TITLE)
+    parser.add_argument("--out", default="paper")
+    parser.add_argument("--level", choices=list(LEVELS), default="record")
+    parser.add_argument("--workers", type=int, default=None)
+    args = parser.parse_args(argv)
+    t0 = time.perf_counter()
+    record = compute(args.out, args.level, args.workers)
+    try:
+        check(record)
+    except AssertionError as err:
+        print(f"{STEM}: check failed: {err}", file=sys.stderr)
+        return 1
+    print(f"{STEM}: wrote {args.out}/results/{STEM}.json ({args.level}) in "
+          f"{time.perf_counter() - t0:.1f} s")
+    return 0
 
 
 if __name__ == "__main__":
-    sys.exit(common.main(sys.modules[__name__]))
+    sys.exit(main())

@@ -1,49 +1,153 @@
-"""The regime study (issue 14): a quick run through the engine, its statistics, its record."""
+"""The regime study as a matched design (issue 22): the matched-arms check, the endpoints, the
+model on planted truth, a quick run through the engine, and the committed record's cells rerun."""
 
 from __future__ import annotations
 
 import json
+import math
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
-from analysis import regimes
+from analysis import _regimes_design as design
+from analysis import _regimes_report as report
+from analysis import _regimes_stats as rstats
+from analysis import regimes, tuning
 
 PAPER = Path(__file__).resolve().parents[1] / "paper"
+RECORD = PAPER / "results" / "regimes.json"
+#: Initial PID gains other than the defaults (a fifth of them).
+WEAK = [1.0, 1.0, 0.0, 2.0, 0.4, 0.0]
 
 
-def _cell(tost_equivalent: bool, significant: bool, diff: float) -> dict:
-    return {"tests": {"iapid-nn-dekf - adaptive-pid": {"significant": significant,
-                                                       "mean_diff": diff}},
-            "tost_iapid_apid": {"equivalent": tost_equivalent}}  # fmt: skip
+def _entry(controller: str, pose: str, table: dict | None = None, mech: str = "slip") -> dict:
+    a = tuning.arm(controller, pose)
+    runs = {t: tuning.scenario(design.document(t, mech), a, table, name=f"{t}@{mech}")
+            for t in ("lemniscate", "circle")}  # fmt: skip
+    return design.arm_entry(runs, controller)
 
 
-@pytest.mark.parametrize(("tost", "sig", "diff", "kind"), [
-    (True, True, 0.0004, "equivalent"),  # a real but sub-millimetre difference: the same
-    (False, True, -0.004, "better"), (False, True, 0.004, "worse"),
-    (False, False, 0.004, "undecided"), (True, False, 0.0, "equivalent"),
-])  # fmt: skip
-def test_classification_of_iapid_vs_apid(tost, sig, diff, kind):
-    assert regimes.classify(_cell(tost, sig, diff)) == kind
+# ---------------------------------------------------------------------------------------------
+# Matched arms
 
 
-def test_where_each_arm_wins_names_its_cells_and_lead():
-    """Backstepping lowest in two cells, 20 % and 50 % ahead of the next arm (an arm that
-    always diverged, tail_mean None, is left out); APID lowest in one, 10 % ahead."""
-    def cell(mech, means):
-        arms = {a: {"tail_mean": means.get(a)} for a in regimes.ARMS}
-        best = min((a for a in means if means[a] is not None), key=means.get)
-        return {"mechanism": mech, "trajectory": "lemniscate", "arms": arms, "best": best}
+def test_a_matched_pair_passes_and_a_pair_differing_in_pose_source_fails():
+    design.matched(_entry("iapid-nn-dekf", "raw"), _entry("adaptive-pid", "raw"), factor="jacobian")
+    design.matched(_entry("adaptive-pid", "filtered"), _entry("pid", "filtered"), factor="adapt")
+    with pytest.raises(design.MatchError, match="pose source differs"):
+        design.matched(_entry("iapid-nn-dekf", "filtered"), _entry("adaptive-pid", "raw"),
+                       factor="jacobian")  # fmt: skip
+    # the paper's own configuration is exactly that pair: IAPID filtered, APID raw
+    with pytest.raises(design.MatchError, match="pose source differs"):
+        design.matched(_entry("iapid-nn-dekf", "paper"), _entry("adaptive-pid", "paper"),
+                       factor="jacobian")  # fmt: skip
 
-    cs = [cell("slip", {"backstepping": 0.8, "pid": 1.0, "adaptive-pid": None}),
-          cell("slip", {"backstepping": 1.0, "pid": 2.0}),
-          cell("ideal", {"adaptive-pid": 0.9, "pid": 1.0, "backstepping": 1.5})]
-    text = regimes._where_each_arm_wins(cs)
-    assert "BSC in 2 cells (mechanism: slip 2; trajectory: lemniscate 2), ahead of the next " \
-           "arm by a median 35.0 % of its mean (range 20.0-50.0 %)" in text
-    assert "APID in 1 cells (mechanism: ideal 1; trajectory: lemniscate 1), ahead of the " \
-           "next arm by a median 10.0 %" in text
+
+def test_the_check_catches_other_differences():
+    a = _entry("iapid-nn-dekf", "raw")
+    with pytest.raises(design.MatchError, match="settings differ in \\['gains'\\]"):
+        design.matched(a, _entry("adaptive-pid", "raw", {"gains": WEAK}), factor="jacobian")
+    # a tuned setting of the arms may differ; a plant may not
+    design.matched(a, _entry("adaptive-pid", "raw", {"gains": WEAK}), {"gains"}, "jacobian")
+    with pytest.raises(design.MatchError, match="context differs"):
+        design.matched(a, _entry("adaptive-pid", "raw", mech="lag-delay"), factor="jacobian")
+    # adaptation on/off is the APID - PID factor, not the IAPID - APID one
+    with pytest.raises(design.MatchError, match="adapt"):
+        design.matched(_entry("adaptive-pid", "raw"), _entry("pid", "raw"), factor="jacobian")
+    # the same arm on the two pose sources: only the pose may differ
+    design.matched(_entry("pid", "raw"), _entry("pid", "filtered"), factor="pose")
+    with pytest.raises(design.MatchError, match="same pose source"):
+        design.matched(_entry("pid", "raw"), _entry("pid", "raw"), factor="pose")
+
+
+# ---------------------------------------------------------------------------------------------
+# Endpoints
+
+
+def test_clopper_pearson_and_exact_mcnemar_closed_forms():
+    """0 of n: the upper bound is 1 - (alpha/2)^(1/n); n of n: the lower is (alpha/2)^(1/n);
+    McNemar with 0 and 6 discordant pairs: p = 2 * 0.5^6."""
+    z = rstats.divergence([False] * 20)
+    assert z["diverged"] == 0 and z["ci_low"] == 0.0
+    assert z["ci_high"] == pytest.approx(1 - 0.025 ** (1 / 20), rel=1e-9)
+    f = rstats.divergence([True] * 20)
+    assert f["ci_high"] == 1.0 and f["ci_low"] == pytest.approx(0.025 ** (1 / 20), rel=1e-9)
+    m = rstats.mcnemar([False] * 6 + [True] * 4, [True] * 6 + [True] * 4)
+    assert (m["a_only"], m["b_only"], m["both"]) == (0, 6, 4)
+    assert m["p"] == pytest.approx(2 * 0.5**6, rel=1e-12)
+    assert rstats.mcnemar([True, False], [True, False])["p"] == 1.0
+
+
+def test_two_always_diverging_arms_are_not_equivalent():
+    r = rstats.pair_rmse([np.nan] * 10, [True] * 10, [np.nan] * 10, [True] * 10)
+    assert r["n_stable"] == 0 and r["mean_diff"] is None and r["mean_a"] is None
+    assert not r["equivalent_rel"] and not r["equivalent_abs"]
+    # one arm always diverging: no stable pair either, and no placeholder in any mean
+    r = rstats.pair_rmse([0.01] * 10, [False] * 10, [50.0] * 10, [True] * 10)
+    assert r["n_stable"] == 0 and r["mean_b"] is None
+
+
+def test_rmse_on_both_stable_pairs_and_equivalence_margins():
+    rng = np.random.default_rng(0)
+    b = 0.02 + 0.001 * rng.standard_normal(20)
+    a = b + 0.0002 + 0.0001 * rng.standard_normal(20)  # +1 %: inside 5 % and inside 1 mm
+    da = np.zeros(20, bool)
+    da[:3] = True  # three of a's runs diverged: their pairs leave
+    r = rstats.pair_rmse(np.where(da, 99.0, a), da, b, np.zeros(20, bool))
+    assert r["n_stable"] == 17 and r["mean_a"] == float(a[3:].mean())
+    assert r["mean_diff"] == pytest.approx(float((a[3:] - b[3:]).mean()), abs=1e-15)
+    assert r["equivalent_rel"] and r["equivalent_abs"]
+    far = rstats.pair_rmse(b * 1.3, np.zeros(20, bool), b, np.zeros(20, bool))  # +30 %
+    assert not far["equivalent_rel"] and not far["equivalent_abs"]
+    assert far["ci_low"] > 0
+
+
+# ---------------------------------------------------------------------------------------------
+# The model on planted truth
+
+
+def _synthetic(seed: int = 0, n_seeds: int = 20) -> tuple[pd.DataFrame, dict]:
+    """Paired log ratios with a planted contrast per (mechanism, pose), a trajectory effect
+    (sum zero), a shared effect per seed (the cluster) and noise."""
+    rng = np.random.default_rng(seed)
+    truth = {("ideal", "raw"): 0.0, ("ideal", "filtered"): 0.0, ("lag", "raw"): -0.30,
+             ("lag", "filtered"): -0.10, ("slip", "raw"): 0.15, ("slip", "filtered"): 0.15}
+    traj = {"a": 0.05, "b": -0.05}
+    seed_eff = 0.05 * rng.standard_normal(n_seeds)
+    rows = [{"mechanism": m, "pose": p, "trajectory": t, "seed": s,
+             "delta": v + traj[t] + seed_eff[s] + 0.03 * rng.standard_normal()}
+            for (m, p), v in truth.items() for t in traj for s in range(n_seeds)]  # fmt: skip
+    return pd.DataFrame(rows), truth
+
+
+def test_the_model_recovers_a_planted_contrast():
+    df, truth = _synthetic()
+    fit = rstats.contrast_model(df)
+    assert fit["clusters"] == 20 and fit["n"] == len(df)
+    for (m, p), v in truth.items():
+        e = fit["cells"][m][p]
+        assert e["log_ci"][0] < v < e["log_ci"][1], (m, p, e)
+        assert abs(e["log"] - v) < 0.05  # 0.03 noise / sqrt(40) + the seeds' mean: << 0.05
+    lag = fit["mechanisms"]["lag"]
+    assert lag["log_ci"][0] < -0.2 < lag["log_ci"][1] and lag["ratio_ci"][1] < 1.0
+    assert fit["tests"]["pose_source"]["p"] < 1e-6  # lag's pose difference is planted
+    assert fit["tests"]["mechanism"]["p"] < 1e-6
+    # no pose interaction planted: the test does not find one (planted on lag only, removed)
+    df2 = df[df.mechanism != "lag"]
+    assert rstats.contrast_model(df2)["tests"]["pose_source"]["p"] > 0.01
+    assert report.classify(fit["mechanisms"]["lag"], False) == "pays"
+    assert report.classify(fit["mechanisms"]["slip"], False) == "costs"
+    assert report.classify(fit["mechanisms"]["ideal"], False) == "same within 5 %"
+    assert report.classify(fit["mechanisms"]["ideal"], True) == "costs"
+    assert report.classify({**fit["mechanisms"]["lag"], "n": 5}, False) == "undecided"
+
+
+# ---------------------------------------------------------------------------------------------
+# A quick run through the engine
 
 
 @pytest.fixture(scope="module")
@@ -59,38 +163,143 @@ def test_quick_run_is_whole_consistent_and_renders(quick):
     stored = json.loads((out / "results" / "regimes.json").read_text())
     assert stored == json.loads(json.dumps(record))
     regimes.check(stored)
-    n = len(record["factors"]["mechanism"]) * len(record["factors"]["trajectory"]) * len(
-        record["factors"]["rate"]) * len(record["factors"]["gains"]) * len(
-        record["factors"]["process_std"])  # fmt: skip
-    assert record["verdict"]["cells"] == n == len(record["cells"])
-    assert record["cost"]["runs"] == record["cost"]["runs_this_time"] > 0
     assert (out / "tables" / "regimes.md").read_text() == regimes.table(stored)
-    assert regimes.render(stored).startswith(f"## {regimes.TITLE}\n")
+    text = regimes.render(stored)
+    assert text.startswith(f"## {regimes.TITLE}\n")
+    assert "+23346" not in text and "pays by staying stable" not in text
+    for pose in regimes.POSES:
+        for c, t in record["tuning"]["arms"][pose].items():
+            assert t["evaluations"] == 2 * record["design"]["per_setting"] * len(t["free"])
+    # the check fails when an arm pair ran on different pose sources
+    bad = json.loads(json.dumps(stored))
+    bad["arms_run"]["tuned"]["raw"]["adaptive-pid"]["filtered"] = True
+    with pytest.raises(AssertionError):
+        regimes.check(bad)
+
+
+def _rerun(record: dict, level: str, pose: str, mech: str, traj: str, arms) -> dict:
+    """The runs of ``arms`` on (mechanism, trajectory) at ``level``/``pose`` from their scenario
+    text and the record's settings, through the engine's run-to-row mapping."""
+    from wmr.engine import Job, run_job
+
+    d = record["design"]
+    mujoco = mech in design.MUJOCO
+    duration = d["mujoco_duration"] if mujoco else d["duration"]
+    seeds = d["mujoco_seeds"] if mujoco else d["seeds" if level == "tuned" else "default_seeds"]
+    doc = design.document(traj, mech, duration)
+    out = {}
+    for c in arms:
+        table = record["tuning"]["arms"][pose][c]["table"] if level == "tuned" else None
+        sc = tuning.scenario(doc, tuning.arm(c, pose), table)
+        out[c] = [run_job(Job(sc, c, s)) for s in range(seeds)]
+    return out
+
+
+def _same_cell(record, contrast, level, pose, mech, traj):
+    a, b = contrast.split(" - ")
+    best = record["best"][pose]
+    ca, cb = best.get(a, a), best.get(b, b)
+    runs = _rerun(record, level, pose, mech, traj, (ca, cb))
+    got = rstats.pair_rmse([r.tail_position for r in runs[ca]], [r.diverged for r in runs[ca]],
+                           [r.tail_position for r in runs[cb]], [r.diverged for r in runs[cb]])
+    want = record["contrasts"][contrast][level][pose][mech]["trajectories"][traj]
+    assert got == want  # made on this machine: exact
 
 
 @pytest.mark.slow
-def test_a_cell_is_its_runs(quick):
-    """A cell's numbers are the store's rows: the means, and the paired differences that the
-    tests are made on (the same seeds, common random numbers)."""
-    record, out = quick
-    from wmr import sweep
-
-    rows = sweep.read_rows(out / ".regimes-store" / "family").to_pandas()
-    c = record["cells"][3]
-    sel = rows[(rows.scenario == f"{c['trajectory']}@{c['mechanism']}")
-               & (rows["estimator.process_std"] == c["process_std"])]  # fmt: skip
-    rate = record["rates"][c["rate"]]
-    sel = sel[(sel["controllers.*.mu"] == rate["mu"])
-              & (sel["controllers.*.jacobian_scale"] == rate["jacobian_scale"])
-              & (sel["controllers.*.gains"] == str(tuple(record["gain_sets"][c["gains"]])))]
-    a = sel[sel.controller == "iapid-nn-dekf"].sort_values("seed").tail_position.to_numpy()
-    b = sel[sel.controller == "adaptive-pid"].sort_values("seed").tail_position.to_numpy()
-    assert len(a) == record["seeds"] and c["arms"]["iapid-nn-dekf"]["tail_mean"] == a.mean()
-    assert c["tests"]["iapid-nn-dekf - adaptive-pid"]["mean_diff"] == np.mean(a - b)
+def test_a_quick_cell_is_its_runs(quick):
+    record, _ = quick
+    _same_cell(record, "adaptive-pid - pid", "tuned", "raw", "lag-delay", "sinusoid")
+    _same_cell(record, "iapid-nn-dekf - adaptive-pid", "default", "filtered", "ideal", "sinusoid")
 
 
-@pytest.mark.skipif(not (PAPER / "results" / "regimes.json").exists(), reason="not generated")
+def test_paper_pose_source_gives_each_arm_the_pose_of_its_arm():
+    """The paper's asymmetric row uses the filtered IAPID and the raw APID runs: under
+    ``pose_source = "paper"`` each acts on exactly that pose (the same run, bit for bit)."""
+    from wmr.engine import Job, run_job
+
+    doc = design.document("sinusoid", "lag-delay", 7.0)
+    for c, pose in (("iapid-nn-dekf", "filtered"), ("adaptive-pid", "raw")):
+        paper = run_job(Job(tuning.scenario(doc, tuning.arm(c, "paper"), None), c, 4))
+        same = run_job(Job(tuning.scenario(doc, tuning.arm(c, pose), None), c, 4))
+        assert paper.tail_position == same.tail_position and np.isfinite(same.tail_position)
+
+
+# ---------------------------------------------------------------------------------------------
+# The committed record
+
+
+def _matched_record() -> bool:
+    return RECORD.exists() and "arms_run" in json.loads(RECORD.read_text())
+
+
+committed = pytest.mark.skipif(not _matched_record(), reason="no record of the matched design "
+                               "committed (the earlier one, retracted, is being replaced)")
+
+
+@committed
 def test_the_committed_record_passes_its_check_and_is_in_the_report():
-    record = json.loads((PAPER / "results" / "regimes.json").read_text())
+    record = json.loads(RECORD.read_text())
     regimes.check(record)
     assert regimes.render(record).rstrip() in (PAPER / "report.md").read_text()
+    assert record["level"] in regimes.LEVELS and record["level"] in regimes.render(record)
+
+
+@committed
+@pytest.mark.slow
+def test_a_sample_of_the_committed_cells_is_rerun_to_the_same_numbers():
+    """Two cells of cheap arms (every seed), one at the defaults: the same numbers, exactly
+    (the record was made on this kind of machine; see tests/cases.CROSS_MACHINE_RTOL)."""
+    record = json.loads(RECORD.read_text())
+    _same_cell(record, "adaptive-pid - pid", "tuned", "raw", "lag-delay", "lemniscate")
+    _same_cell(record, "adaptive-pid - pid", "default", "filtered", "slip", "circle")
+
+
+@committed
+@pytest.mark.slow
+def test_a_committed_run_is_reproduced_by_wmr_run(tmp_path):
+    """A run of the record from its scenario file by ``wmr run``: the tuned APID on the raw pose
+    on lag plus delay, lemniscate, seed 0."""
+    record = json.loads(RECORD.read_text())
+    table = record["tuning"]["arms"]["raw"]["adaptive-pid"]["table"]
+    doc = design.evaluation_text("lemniscate", "lag-delay")
+    lines = [doc, '[estimator]\npose_source = "raw"', "[controllers.adaptive-pid]"]
+    lines += [f"{k} = {json.dumps(v)}" for k, v in table.items()]
+    path = tmp_path / "cell.toml"
+    path.write_text("\n".join(lines) + "\n")
+    out = tmp_path / "run"
+    subprocess.run([str(Path(sys.executable).parent / "wmr"), "run", str(path), "--controller",
+                    "adaptive-pid", "--seed", "0", "--out", str(out)], check=True,
+                   capture_output=True)  # fmt: skip
+    summary = json.loads((out / "summary.json").read_text())["runs"][0]
+    want = _rerun(record, "tuned", "raw", "lag-delay", "lemniscate", ("adaptive-pid",))
+    r = want["adaptive-pid"][0]
+    assert summary["rmse"]["position"] == r.rmse_position and summary["diverged"] == r.diverged
+    # and that run is the record's: the cell's both-stable mean includes it when it is stable
+    cell = record["contrasts"]["adaptive-pid - pid"]["tuned"]["raw"]["lag-delay"]
+    assert cell["trajectories"]["lemniscate"]["pairs"] == record["design"]["seeds"]
+    assert math.isfinite(r.rmse_position)
+
+
+@committed
+@pytest.mark.slow
+def test_a_committed_recovery_cell_is_its_runs():
+    """Recovery after the payload change (``wmr.measures``' recovery RMSE) of the tuned APID and
+    PID on the raw pose, every seed of the record, through the engine's job-to-row mapping."""
+    from wmr.engine import Job
+    from wmr.engine.jobs import job_row
+
+    record = json.loads(RECORD.read_text())
+    rec = record["recovery"]["poses"]["raw"]
+    sc_name = "lemniscate@lagged-velocity-change"
+    doc = design.document("lemniscate", "lagged-velocity-change")
+    rows = {}
+    for c in ("adaptive-pid", "pid"):
+        sc = tuning.scenario(doc, tuning.arm(c, "raw"), record["tuning"]["arms"]["raw"][c]["table"])
+        rows[c] = [job_row(Job(sc, c, s, measures=("recovery",)))
+                   for s in range(record["design"]["recovery_seeds"])]  # fmt: skip
+    a, b = rows["adaptive-pid"], rows["pid"]
+    got = rstats.pair_rmse([r["recovery_rmse"] for r in a], [r["diverged"] for r in a],
+                           [r["recovery_rmse"] for r in b], [r["diverged"] for r in b])
+    assert got == rec["contrasts"]["adaptive-pid - pid"][sc_name]
+    assert rec["arms"][sc_name]["pid"]["n"] == len(b)

@@ -1,0 +1,293 @@
+"""The regime study's verdicts, prose, table and figure, from its record only (issue 22 item 7).
+
+A mechanism's verdict on a contrast ``a - b`` (tuned settings, the model's estimate averaged
+per pose source, as the ratio of the both-stable RMSEs ``exp(log r_a - log r_b)``):
+
+On each pose source (the model's cell estimate):
+
+- ``"costs"``: ``a`` diverges significantly more often than ``b`` (exact McNemar at 0.05);
+- ``"same within 5 %"``: else, the 95 % interval of the ratio lies inside ``[1/1.05, 1.05]``
+  (a difference that exists but is smaller than the margin is "the same" in practice);
+- ``"pays"``: else, the interval lies below 1; ``"costs"``: above 1;
+- ``"undecided"``: otherwise, or fewer than ``MIN_PAIRS`` = 6 both-stable pairs.
+
+The mechanism's verdict is the pose sources' common word, else "depends on the pose source".
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from analysis import common
+from wmr import controllers
+
+__all__ = ["verdicts", "classify", "notes", "table", "figure"]
+
+KEY = "best-adaptive - best-fixed"
+#: Fewest both-stable pairs behind a verdict (fewer: "undecided"; a cell's interval from the
+#: model's pooled clusters is not evidence about two or three pairs).
+MIN_PAIRS = 6
+IA = "iapid-nn-dekf - adaptive-pid"
+
+
+def _div_worse(c: dict, mech: str, pose: str) -> bool:
+    """Whether a diverges significantly more often than b on ``mech`` and ``pose`` (tuned)."""
+    d = c["tuned"][pose].get(mech, {}).get("divergence")
+    return bool(d and d["p"] < 0.05 and d["a_only"] > d["b_only"])
+
+
+def classify(est: dict | None, div_worse: bool, margin: float = 0.05) -> str:
+    """The verdict word (see the module) from the model's estimate ``est`` (``ratio_ci``)."""
+    if div_worse:
+        return "costs"
+    if est is None or est["n"] < MIN_PAIRS:
+        return "undecided"
+    lo, hi = est["ratio_ci"]
+    if lo > 1 / (1 + margin) and hi < 1 + margin:
+        return "same within 5 %"
+    if hi < 1.0:
+        return "pays"
+    if lo > 1.0:
+        return "costs"
+    return "undecided"
+
+
+def _one(est: dict | None, worse: bool) -> dict:
+    return {"verdict": classify(est, worse), "diverges_more": worse,
+            "ratio": None if est is None else est["ratio"],
+            "ratio_ci": None if est is None else est["ratio_ci"],
+            "n_stable": 0 if est is None else est["n"]}  # fmt: skip
+
+
+def verdicts(record: dict) -> dict:
+    """Per mechanism and contrast: the verdict on each pose source (the model's cell estimate
+    and that pose's McNemar), and the mechanism's: the common word when both pose sources agree,
+    else "depends on the pose source"; beside it the ratio averaged over the pose sources."""
+    out: dict = {"rule": __doc__.split("\n\n", 1)[1].strip(), "mechanisms": {}}
+    for m in record["mechanisms"]:
+        out["mechanisms"][m] = {}
+        for name, c in record["contrasts"].items():
+            model = c["tuned"]["model"] or {"cells": {}, "mechanisms": {}}
+            poses = {p: _one(model["cells"].get(m, {}).get(p), _div_worse(c, m, p))
+                     for p in record["poses"]}  # fmt: skip
+            words = {v["verdict"] for v in poses.values()}
+            mean = _one(model["mechanisms"].get(m), False)
+            mean["verdict"] = words.pop() if len(words) == 1 else "depends on the pose source"
+            mean["diverges_more"] = any(v["diverges_more"] for v in poses.values())
+            out["mechanisms"][m][name] = {**mean, "poses": poses}
+    return out
+
+
+def _r(v: dict) -> str:
+    if v["ratio"] is None:
+        return "no stable pairs"
+    lo, hi = v["ratio_ci"]
+    return f"{v['ratio']:.3f} [{lo:.3f}, {hi:.3f}], n = {v['n_stable']}"
+
+
+def _rp(v: dict) -> str:
+    """The mechanism's ratio and each pose source's verdict and ratio."""
+    return f"{_r(v)}; " + "; ".join(f"{p}: {x['verdict']} {_r(x)}"
+                                    for p, x in v["poses"].items())
+
+
+def _names(ms) -> str:
+    return ", ".join(ms) if ms else "none"
+
+
+def _lbl(c: str) -> str:
+    return controllers.label(c)
+
+
+def notes(record: dict) -> list[str]:
+    """The answer first (at most five sentences), then the details, all from the record."""
+    v = record["verdict"]["mechanisms"]
+    words = ("pays", "costs", "same within 5 %", "undecided", "depends on the pose source")
+    by = {w: [m for m in v if v[m][KEY]["verdict"] == w] for w in words}
+    ia = {w: [m for m in v if v[m][IA]["verdict"] == w] for w in words}
+    best = record["best"]
+    tot = {}
+    for pose in record["poses"]:
+        for m, arms in record["divergence"]["tuned"][pose].items():
+            for c, x in arms.items():
+                k, n = tot.get(c, (0, 0))
+                tot[c] = (k + x["diverged"], n + x["n"])
+    worst = max(tot, key=lambda c: tot[c][0] / max(tot[c][1], 1))
+    d, s = record["design"], record["seeds"]
+    ada = ", ".join(f"{_lbl(best[p]['best-adaptive'])} on the {p} pose" for p in best)
+    fix = ", ".join(_lbl(best[p]["best-fixed"]) for p in best)
+    answer = [
+        f"Adaptation (the best adaptive arm by the training objective: {ada}) "
+        f"against the best fixed arm ({fix}), "
+        f"each tuned with the same budget per free setting, pays on {_names(by['pays'])}; it "
+        f"costs on {_names(by['costs'])}; it is the same within 5 % on "
+        f"{_names(by['same within 5 %'])}; it depends on the pose source on "
+        f"{_names(by['depends on the pose source'])}; undecided on {_names(by['undecided'])}.",
+        f"IAPID-NN-DEKF against APID on the same pose pays on {_names(ia['pays'])}, costs on "
+        f"{_names(ia['costs'])}, is the same within 5 % on {_names(ia['same within 5 %'])}, "
+        f"depends on the pose source on {_names(ia['depends on the pose source'])} and is "
+        f"undecided on {_names(ia['undecided'])} (ratios of both-stable RMSE below).",
+        f"Divergence at the tuned settings: {_lbl(worst)} fails most often "
+        f"({tot[worst][0]} of {tot[worst][1]} runs); IAPID-NN-DEKF "
+        f"{tot['iapid-nn-dekf'][0]} of {tot['iapid-nn-dekf'][1]}, APID "
+        f"{tot['adaptive-pid'][0]} of {tot['adaptive-pid'][1]}.",
+        f"Level '{record['level']}': {s['tuned']} seeds at the tuned settings "
+        f"({d['mujoco_seeds']} on the MuJoCo robot, lemniscate only), {s['default']} at the "
+        f"defaults; tuning {d['per_setting']} evaluations per free setting per restart, 2 "
+        f"restarts, {len(record['tuning']['budget']['training'])} training runs per "
+        "evaluation; the earlier regime verdict (counts of cells at a rate grid) is retracted.",
+    ]
+    arms = [t for p in record["tuning"]["arms"].values() for t in p.values()]
+    n_dis = sum(not t["agreement"]["agree"] for t in arms)
+    answer.append(
+        f"Each arm runs at its own tuned settings, and the tuning's 2 restarts disagree (by more "
+        f"than 5 % of the objective) for {n_dis} of {len(arms)} tuned arms: at this budget a "
+        "tuned contrast includes how well each arm's tuning went (defaults below).")
+    dm = record["contrasts"][IA]["default"]["model"]
+    rows = []
+    if dm:
+        rows.append("At the defaults (the same settings for IAPID and APID), IAPID - APID: "
+                    + "; ".join(f"{m} {e['ratio']:.3f} [{e['ratio_ci'][0]:.3f}, "
+                                f"{e['ratio_ci'][1]:.3f}]" for m, e in dm["mechanisms"].items())
+                    + f" ({dm['clusters']} seeds as clusters"
+                    + (", too few for a cluster-robust interval to be trusted"
+                       if dm["clusters"] < 10 else "") + "; the fit's warnings: "
+                    f"{'; '.join(dict.fromkeys(dm['warnings'])) or 'none'}).")  # fmt: skip
+    for m in record["mechanisms"]:
+        rows.append(f"{m}: best adaptive - best fixed {v[m][KEY]['verdict']} ({_rp(v[m][KEY])}); "
+                    f"IAPID - APID {v[m][IA]['verdict']} ({_rp(v[m][IA])}); APID - PID "
+                    f"{v[m]['adaptive-pid - pid']['verdict']} "
+                    f"({_r(v[m]['adaptive-pid - pid'])}); oracle - IAPID "
+                    f"{v[m]['iapid-oracle - iapid-nn-dekf']['verdict']} "
+                    f"({_r(v[m]['iapid-oracle - iapid-nn-dekf'])}).")
+    agree = [f"{a}@{p}" for p, arms in record["tuning"]["arms"].items()
+             for a, t in arms.items() if not t["agreement"]["agree"]]  # fmt: skip
+    edge = [f"{a}@{p} ({', '.join(e['setting'] + ' ' + e['edge'] for e in t['edges'])})"
+            for p, arms in record["tuning"]["arms"].items() for a, t in arms.items()
+            if t["edges"]]  # fmt: skip
+    tests = record["contrasts"][IA]["tuned"]["model"]["tests"]
+    extra = [
+        "Ratios are exp of the model's contrast (log RMSE after the transient on the "
+        "both-stable pairs, clustered by seed; the trajectories are fixed effects, so an "
+        "interval is over seeds on these trajectories), averaged over the pose sources, then "
+        "per pose source; n is the count of both-stable pairs.",
+        *rows,
+        f"Interactions of IAPID - APID: pose source p = {tests['pose_source']['p']:.3g}, "
+        + (f"trajectory p = {tests['trajectory']['p']:.3g}, " if tests["trajectory"] else "")
+        + f"mechanism p = {tests['mechanism']['p']:.3g} (cluster-robust Wald tests, "
+        f"{record['contrasts'][IA]['tuned']['model']['clusters']} clusters; the fit's warnings: "
+        f"{len(record['contrasts'][IA]['tuned']['model']['warnings'])})."
+        if tests["pose_source"] and tests["mechanism"] else "Interaction tests: too few cells.",
+        f"Tuning restarts that disagree (spread above 5 % of the best objective): "
+        f"{_names(agree)}; optima on a box edge: {_names(edge)}.",
+        *_known(record),
+        _paper(record),
+        *_recovery(record),
+        f"Cost: {record['cost']['runs']:,} evaluation runs, "
+        f"{record['cost']['run_seconds_total']:.0f} s of running over the invocations that "
+        f"filled the stores; the last invocation ran {record['cost']['runs_this_time']:,} of "
+        f"them in {record['cost']['seconds']:.0f} s (tuning {record['cost']['tuning_seconds']:.0f}"
+        f" s; an arm tuned before is read back from its cache) on {record['cost']['engine']}.",
+    ]
+    return answer + extra
+
+
+def _known(record: dict) -> list[str]:
+    """The labelled upper bound: best adaptive against the fixed PID tuned per mechanism."""
+    k = record.get("known_pid")
+    if not k or not k["model"]:
+        return []
+    parts = []
+    for m, e in k["model"]["mechanisms"].items():
+        more = [p for p, d in k["divergence"].items() if m in d and d[m]["p"] < 0.05
+                and d[m]["a_only"] > d[m]["b_only"]]  # fmt: skip
+        parts.append(f"{m} {e['ratio']:.3f} [{e['ratio_ci'][0]:.3f}, {e['ratio_ci'][1]:.3f}]"
+                     + (f" (the adaptive arm diverges more on the {', '.join(more)} pose)"
+                        if more else ""))
+    return [f"Upper bound ({k['label']}), ratio of both-stable RMSE: " + "; ".join(parts) + "."]
+
+
+def _recovery(record: dict) -> list[str]:
+    """One sentence per pose source on the recovery after a change (tuned settings)."""
+    rec = record.get("recovery")
+    if not rec:
+        return []
+    out = []
+    for pose, r in rec["poses"].items():
+        parts = []
+        for name in (IA, KEY):
+            cells = [x for x in r["contrasts"].get(name, {}).values() if x["n_stable"] > 1]
+            if not cells:
+                continue
+            rel = float(np.median([x["rel_diff"] for x in cells]))
+            lower = sum(x["ci_high"] is not None and x["ci_high"] < 0 for x in cells)
+            higher = sum(x["ci_low"] is not None and x["ci_low"] > 0 for x in cells)
+            parts.append(f"{name}: median {100 * rel:+.1f} % over {len(cells)} scenarios, lower "
+                         f"(95 % interval below 0) in {lower}, higher in {higher}")
+        n = min(x["n"] for arms in r["arms"].values() for x in arms.values())
+        out.append(f"Recovery on the {pose} pose (position RMSE over the {rec['window_s']:g} s "
+                   f"after the payload change or the disturbance's start, both-stable pairs of "
+                   f"{n} seeds): " + "; ".join(parts) + ".")
+    return out
+
+
+def _paper(record: dict) -> str:
+    e = record["paper_arm"]["endpoints"]
+    parts = []
+    for m, x in e.items():
+        t = [y for y in x["trajectories"].values() if y["n_stable"]]
+        if t:
+            rel = float(np.median([y["rel_diff"] for y in t]))
+            parts.append(f"{m} {100 * rel:+.1f} %")
+    return (f"The paper's asymmetric arm ({record['paper_arm']['label']}), median relative "
+            f"difference of the both-stable means over trajectories: {'; '.join(parts)}.")
+
+
+def table(record: dict) -> str:
+    """Per mechanism and arm at the tuned settings: divergence (k/n, Clopper-Pearson) per pose
+    source, and the verdicts (``tables/regimes.md``)."""
+    header = ["mechanism", "pose", *[_lbl(a) for a in record["arms"]]]
+    rows = []
+    for m in record["mechanisms"]:
+        for pose in record["poses"]:
+            arms = record["divergence"]["tuned"][pose].get(m, {})
+            rows.append([m, pose, *[
+                f"{arms[a]['diverged']}/{arms[a]['n']} [{arms[a]['ci_low']:.2f}, "
+                f"{arms[a]['ci_high']:.2f}]" if a in arms else "—" for a in record["arms"]]])
+    lines = ["Divergence at the tuned settings (diverged/runs, 95 % Clopper-Pearson):", "",
+             *common.md_table(header, rows), ""]  # fmt: skip
+    v = record["verdict"]["mechanisms"]
+    names = list(record["contrasts"])
+    lines += ["Verdicts (ratio of both-stable RMSE, 95 % interval, pairs):", "",
+              *common.md_table(["mechanism", *names],
+                               [[m, *[f"{v[m][n]['verdict']}: {_r(v[m][n])}" for n in names]]
+                                for m in record["mechanisms"]])]  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def figure(record: dict):
+    """Each contrast's ratio per mechanism with its interval, per pose source (tuned)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
+
+    names = list(record["contrasts"])
+    mechs = record["mechanisms"]
+    fig, axes = plt.subplots(1, len(names), figsize=(3.6 * len(names), 0.4 * len(mechs) + 1.8),
+                             sharey=True, squeeze=False, layout="constrained")  # fmt: skip
+    for ax, n in zip(axes[0], names, strict=True):
+        model = record["contrasts"][n]["tuned"]["model"]
+        for k, pose in enumerate(record["poses"]):
+            for i, m in enumerate(mechs):
+                e = (model or {}).get("cells", {}).get(m, {}).get(pose)
+                if e:
+                    y = i + (k - 0.5) * 0.3
+                    ax.plot(e["ratio_ci"], [y, y], "-", color=f"C{k}")
+                    ax.plot(e["ratio"], y, "o", color=f"C{k}", label=pose if i == 0 else None)
+        ax.axvline(1.0, color="k", lw=0.8)
+        ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(NullFormatter())  # (minor labels overlap on short ranges)
+        ax.set_title(n, fontsize=8)
+        ax.set_xlabel("RMSE ratio a / b (both stable)")
+    axes[0, 0].set_yticks(range(len(mechs)), mechs, fontsize=7)
+    axes[0, 0].legend(fontsize=7)
+    return fig

@@ -1,0 +1,187 @@
+"""The regime study's endpoints and its model (DESIGN §7.3-7.5; issue 22 items 4 and 5).
+
+- **Divergence** per arm: the share of diverged runs with its exact Clopper-Pearson interval
+  (``scipy.stats.binomtest``); paired: the exact McNemar test on the discordant pairs
+  (``statsmodels``' ``mcnemar(exact=True)``), a pair being the same (trajectory, seed).
+- **RMSE** after the transient on the pairs where both arms stayed within the bound, with that
+  count beside it: the means, their difference with its paired-t interval, and equivalence
+  (``wmr.stats.tost``) at ±5 % of the reference arm's mean and at ±1 mm.  No stable pair: no
+  mean, no difference and never "equivalent".
+- **The model**: for a contrast ``a - b``, the paired log ratio ``log r_a - log r_b`` of each
+  both-stable pair (a unit = level, pose source, mechanism, trajectory, seed), regressed by OLS
+  on ``mechanism x pose source`` cells plus the trajectory (sum-coded), with the covariance
+  clustered by seed (common random numbers tie every run of a seed).  This is the model of log
+  RMSE on unit, factors and arm with the arm's interactions: the unit's own level cancels in
+  the pair.  Each contrast per mechanism (averaged over the pose sources) and per (mechanism,
+  pose source) comes with its interval; Wald tests give the contrast's interactions with pose
+  source, trajectory and mechanism.  The fit's warnings are recorded beside it.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Sequence
+
+import numpy as np
+
+from wmr import stats
+
+__all__ = ["REL_MARGIN", "ABS_MARGIN", "ALPHA", "divergence", "mcnemar", "stable_pairs",
+           "pair_rmse", "contrast_model"]  # fmt: skip
+
+#: Relative equivalence margin: ±5 % of the reference arm's mean.
+REL_MARGIN = 0.05
+#: Absolute equivalence margin [m].
+ABS_MARGIN = 1e-3
+ALPHA = 0.05
+
+
+def _num(x) -> float | None:
+    return None if x is None or not math.isfinite(float(x)) else float(x)
+
+
+def divergence(diverged: Sequence[bool]) -> dict:
+    """``k`` diverged of ``n`` runs, the share and its exact 95 % Clopper-Pearson interval."""
+    from scipy.stats import binomtest
+
+    d = np.asarray(diverged, dtype=bool)
+    n, k = int(d.size), int(d.sum())
+    if n == 0:
+        return {"n": 0, "diverged": 0, "share": None, "ci_low": None, "ci_high": None}
+    ci = binomtest(k, n).proportion_ci(confidence_level=1 - ALPHA, method="exact")
+    return {"n": n, "diverged": k, "share": k / n, "ci_low": float(ci.low),
+            "ci_high": float(ci.high)}  # fmt: skip
+
+
+def mcnemar(a: Sequence[bool], b: Sequence[bool]) -> dict:
+    """Exact McNemar test of paired divergence indicators ``a``, ``b`` (shape (n,)): the
+    discordant counts (``a_only``: a diverged and b not) and the two-sided p-value (1 with no
+    discordant pair)."""
+    from statsmodels.stats.contingency_tables import mcnemar as _mcnemar
+
+    a, b = np.asarray(a, dtype=bool), np.asarray(b, dtype=bool)
+    table = [[int(np.sum(a & b)), int(np.sum(a & ~b))], [int(np.sum(~a & b)),
+                                                         int(np.sum(~a & ~b))]]  # fmt: skip
+    p = 1.0 if table[0][1] + table[1][0] == 0 else float(_mcnemar(table, exact=True).pvalue)
+    return {"pairs": int(a.size), "both": table[0][0], "a_only": table[0][1],
+            "b_only": table[1][0], "p": p}  # fmt: skip
+
+
+def stable_pairs(ra, da, rb, db) -> tuple[np.ndarray, np.ndarray]:
+    """The paired RMSEs ``(a, b)`` where neither run diverged and both are finite."""
+    ra, rb = np.asarray(ra, float), np.asarray(rb, float)
+    ok = ~np.asarray(da, bool) & ~np.asarray(db, bool) & np.isfinite(ra) & np.isfinite(rb)
+    return ra[ok], rb[ok]
+
+
+def pair_rmse(ra, da, rb, db) -> dict:
+    """RMSE of arms a and b on their both-stable pairs (see the module): ``n_stable``, the
+    means, ``mean_diff`` (a - b) and its 95 % paired-t interval, and TOST at ±5 % of b's mean
+    (``equivalent_rel``) and at ±1 mm (``equivalent_abs``); None everywhere without a pair."""
+    a, b = stable_pairs(ra, da, rb, db)
+    out = {"pairs": int(np.size(ra)), "n_stable": int(a.size)}
+    if a.size == 0:
+        return {**out, "mean_a": None, "mean_b": None, "mean_diff": None, "ci_low": None,
+                "ci_high": None, "rel_diff": None, "equivalent_rel": False,
+                "equivalent_abs": False, "tost_rel": None, "tost_abs": None}  # fmt: skip
+    d = a - b
+    if d.size > 1 and np.std(d) > 0:
+        from scipy.stats import t as student
+
+        h = float(student.ppf(1 - ALPHA / 2, d.size - 1) * np.std(d, ddof=1) / math.sqrt(d.size))
+    else:
+        h = math.nan
+    mb = float(b.mean())
+    rel = stats.tost(a, b, REL_MARGIN * mb, ALPHA) if d.size > 1 else None
+    ab = stats.tost(a, b, ABS_MARGIN, ALPHA) if d.size > 1 else None
+    return {**out, "mean_a": float(a.mean()), "mean_b": mb, "mean_diff": float(d.mean()),
+            "ci_low": _num(d.mean() - h), "ci_high": _num(d.mean() + h),
+            "rel_diff": float(d.mean() / mb),
+            "equivalent_rel": bool(rel is not None and rel.equivalent),
+            "equivalent_abs": bool(ab is not None and ab.equivalent),
+            "tost_rel": None if rel is None else rel.to_json(),
+            "tost_abs": None if ab is None else ab.to_json()}  # fmt: skip
+
+
+def contrast_model(frame) -> dict:
+    """Fit the contrast model (see the module) to ``frame``, a DataFrame of both-stable pairs
+    with columns ``delta`` (log r_a - log r_b), ``mechanism``, ``pose``, ``trajectory``,
+    ``seed``.  Returns per (mechanism, pose) and per mechanism the estimate, its 95 % interval
+    (log scale and as a ratio ``exp``), the Wald tests of the interactions, the cluster count
+    and the fit's warnings."""
+    import pandas as pd
+    import statsmodels.formula.api as smf
+
+    df = frame.reset_index(drop=True).copy()
+    mechs = list(dict.fromkeys(df.mechanism))
+    poses = sorted(set(df.pose))
+    trajs = sorted(set(df.trajectory))
+    df["cell"] = pd.Categorical(df.mechanism + "|" + df.pose)
+    formula = "delta ~ 0 + cell" + (" + C(trajectory, Sum)" if len(trajs) > 1 else "")
+    caught: list[str] = []
+    with warnings.catch_warnings(record=True) as wlist:
+        warnings.simplefilter("always")
+        fit = smf.ols(formula, data=df).fit(cov_type="cluster",
+                                            cov_kwds={"groups": df.seed.to_numpy()})
+        names = list(fit.params.index)
+        out = {"n": int(len(df)), "clusters": int(df.seed.nunique()), "cells": {},
+               "mechanisms": {}, "tests": {}}  # fmt: skip
+
+        def est(weights: dict[str, float]) -> dict:
+            L = np.zeros(len(names))
+            for k, w in weights.items():
+                L[names.index(k)] = w
+            t = fit.t_test(L)
+            lo, hi = (float(v) for v in np.asarray(t.conf_int(alpha=ALPHA)).ravel())
+            e = float(np.asarray(t.effect).ravel()[0])
+            return {"log": e, "log_ci": [lo, hi], "ratio": math.exp(e),
+                    "ratio_ci": [math.exp(lo), math.exp(hi)],
+                    "p": float(np.asarray(t.pvalue).ravel()[0])}  # fmt: skip
+
+        present = {c: f"cell[{c}]" for c in df.cell.cat.categories}
+        for c, col in present.items():
+            m, p = c.split("|")
+            out["cells"].setdefault(m, {})[p] = {**est({col: 1.0}),
+                                                 "n": int((df.cell == c).sum())}  # fmt: skip
+        for m in mechs:
+            cols = [present[f"{m}|{p}"] for p in poses if f"{m}|{p}" in present]
+            out["mechanisms"][m] = {**est({c: 1.0 / len(cols) for c in cols}),
+                                    "n": int((df.mechanism == m).sum())}  # fmt: skip
+        out["tests"] = _wald(fit, names, mechs, poses, present, len(trajs))
+    for w in wlist:
+        caught.append(f"{w.category.__name__}: {w.message}")
+    out["warnings"] = caught
+    return out
+
+
+def _wald(fit, names, mechs, poses, present, n_traj) -> dict:
+    """Joint Wald tests (cluster-robust): the contrast's interaction with the pose source (every
+    mechanism's pose-source difference zero), with the trajectory (the trajectory effects zero)
+    and with the mechanism (every mechanism's mean equal)."""
+    def test(rows: list[np.ndarray]) -> dict | None:
+        if not rows:
+            return None
+        r = fit.wald_test(np.vstack(rows), scalar=True)
+        return {"statistic": float(r.statistic), "df": len(rows), "p": float(r.pvalue)}
+
+    def vec(weights):
+        v = np.zeros(len(names))
+        for k, w in weights.items():
+            v[names.index(k)] = w
+        return v
+
+    pose_rows = []
+    for m in mechs:
+        cols = [present.get(f"{m}|{p}") for p in poses]
+        cols = [c for c in cols if c]
+        pose_rows += [vec({cols[0]: 1.0, c: -1.0}) for c in cols[1:]]
+    traj_rows = [vec({n: 1.0}) for n in names if n.startswith("C(trajectory")]
+    mean_cols = []
+    for m in mechs:
+        cols = [present[f"{m}|{p}"] for p in poses if f"{m}|{p}" in present]
+        mean_cols.append({c: 1.0 / len(cols) for c in cols})
+    mech_rows = [vec({**{k: v for k, v in mean_cols[0].items()},
+                      **{k: -v for k, v in mc.items()}}) for mc in mean_cols[1:]]
+    return {"pose_source": test(pose_rows), "trajectory": test(traj_rows) if n_traj > 1 else None,
+            "mechanism": test(mech_rows)}  # fmt: skip
