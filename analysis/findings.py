@@ -164,6 +164,42 @@ def robots(rob: dict) -> Finding:
     return Finding("Which controller on which robot?", text, TITLE, "robots_ladder.png")
 
 
+def regimes(reg: dict) -> Finding:
+    """When does adaptation pay, and against what (the matched design under equal tuning)."""
+    from analysis.regimes import TITLE
+
+    mech = reg["verdict"]["mechanisms"]
+
+    def where(contrast: str, word: str) -> list[str]:
+        return [m for m, v in mech.items() if v[contrast]["verdict"] == word]
+
+    def span(contrast: str, ms: list[str]) -> str:
+        r = [mech[m][contrast]["ratio"] for m in ms]
+        return f"{min(r):.2f}–{max(r):.2f}"
+
+    ba, ia = "best-adaptive - best-fixed", "iapid-nn-dekf - adaptive-pid"
+    best = reg["best"]["raw"]
+    pays, costs = where(ba, "pays"), where(ba, "costs")
+    ipays = where(ia, "pays")
+    undecided = [m for m in mech if all(v["verdict"] == "undecided" for v in mech[m].values())]
+    dm = reg["contrasts"][ia]["default"]["model"]["cells"]
+    dev = max(abs(c["ratio"] - 1) for per in dm.values() for c in per.values())
+    arms = [t for per in reg["tuning"]["arms"].values() for t in per.values()]
+    n_dis = sum(not t["agreement"]["agree"] for t in arms)
+    text = (f"Under equal tuning the best adaptive arm, {controllers.label(best['best-adaptive'])}, "
+            f"beats the best fixed one, {controllers.label(best['best-fixed'])}, on "
+            + ", ".join(pays) + f" (RMSE ratio {span(ba, pays)}) and loses on "
+            + (", ".join(costs) or "none") + "; " + (", ".join(undecided) or "none")
+            + " stay undecided. "
+            f"IAPID-NN-DEKF beats APID on the same pose on " + ", ".join(ipays)
+            + f" (ratio {span(ia, ipays)}) but only at their own tuned settings: at the shared "
+            f"defaults the two differ by at most {100 * dev:.1f} %. "
+            f"The tuning's restarts disagree for {n_dis} of {len(arms)} arms, so each tuned "
+            "contrast also measures how well each arm's tuning went.")
+    return Finding("When does adaptation pay, and against what?", text, TITLE,
+                   reg["figures"][0] if reg.get("figures") else None)
+
+
 #: (records read, the finding's function) in report order; the first record is required, the
 #: others are passed as None when absent.
 FINDINGS: tuple[tuple[tuple[str, ...], Callable[..., Finding]], ...] = (
@@ -171,6 +207,7 @@ FINDINGS: tuple[tuple[tuple[str, ...], Callable[..., Finding]], ...] = (
     (("jacobians",), jacobians),
     (("margins", "boundedness"), margins),
     (("robots",), robots),
+    (("regimes",), regimes),
 )
 
 
