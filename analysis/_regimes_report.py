@@ -108,7 +108,7 @@ def notes(record: dict) -> list[str]:
     best = record["best"]
     tot = {}
     for pose in record["poses"]:
-        for m, arms in record["divergence"]["tuned"][pose].items():
+        for _m, arms in record["divergence"]["tuned"][pose].items():
             for c, x in arms.items():
                 k, n = tot.get(c, (0, 0))
                 tot[c] = (k + x["diverged"], n + x["n"])
