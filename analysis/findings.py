@@ -186,8 +186,8 @@ def regimes(reg: dict) -> Finding:
     dev = max(abs(c["ratio"] - 1) for per in dm.values() for c in per.values())
     arms = [t for per in reg["tuning"]["arms"].values() for t in per.values()]
     n_dis = sum(not t["agreement"]["agree"] for t in arms)
-    text = (f"Under equal tuning the best adaptive arm, {controllers.label(best['best-adaptive'])}, "
-            f"beats the best fixed one, {controllers.label(best['best-fixed'])}, on "
+    ad, fx = (controllers.label(best[k]) for k in ("best-adaptive", "best-fixed"))
+    text = (f"Under equal tuning the best adaptive arm, {ad}, beats the best fixed one, {fx}, on "
             + ", ".join(pays) + f" (RMSE ratio {span(ba, pays)}) and loses on "
             + (", ".join(costs) or "none") + "; " + (", ".join(undecided) or "none")
             + " stay undecided. "
