@@ -191,7 +191,7 @@ def regimes(reg: dict) -> Finding:
             + ", ".join(pays) + f" (RMSE ratio {span(ba, pays)}) and loses on "
             + (", ".join(costs) or "none") + "; " + (", ".join(undecided) or "none")
             + " stay undecided. "
-            f"IAPID-NN-DEKF beats APID on the same pose on " + ", ".join(ipays)
+            "IAPID-NN-DEKF beats APID on the same pose on " + ", ".join(ipays)
             + f" (ratio {span(ia, ipays)}) but only at their own tuned settings: at the shared "
             f"defaults the two differ by at most {100 * dev:.1f} %. "
             f"The tuning's restarts disagree for {n_dis} of {len(arms)} arms, so each tuned "
