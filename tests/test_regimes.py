@@ -168,7 +168,7 @@ def test_quick_run_is_whole_consistent_and_renders(quick):
     assert text.startswith(f"## {regimes.TITLE}\n")
     assert "+23346" not in text and "pays by staying stable" not in text
     for pose in regimes.POSES:
-        for c, t in record["tuning"]["arms"][pose].items():
+        for _c, t in record["tuning"]["arms"][pose].items():
             assert t["evaluations"] == 2 * record["design"]["per_setting"] * len(t["free"])
     # the check fails when an arm pair ran on different pose sources
     bad = json.loads(json.dumps(stored))
