@@ -187,7 +187,8 @@ def order_stats(numbers: np.ndarray, paper: np.ndarray, names: Sequence[str],
         (scenario, axis)), ``iapid_first_all`` (P IAPID is lowest on all 9), ``kendall_tau``
         (mean tau per (scenario, axis) and overall), ``pairwise`` (P that A < B, over the 9
         (scenario, axis) pairs pooled, for each ordered pair, with the paper's own share), each
-        probability with a 95 % cluster-bootstrap interval over points.
+        probability with its exact (Clopper-Pearson) 95 % interval over the points (a zero
+        count: ``[0, upper]``); the Kendall tau with a cluster-bootstrap interval.
     """
     n_p, n_s = numbers.shape[:2]
     x = numbers.reshape(n_p, n_s, 3, 4, 3)  # point, seed, scenario, controller, axis
@@ -203,10 +204,16 @@ def order_stats(numbers: np.ndarray, paper: np.ndarray, names: Sequence[str],
     # (p, s, scenario, axis): IAPID (index 0) strictly below every other (a tie is not first)
     first = x[:, :, :, 0, :] < x[:, :, :, 1:, :].min(axis=3)
 
-    def prob(ind):  # ind: (n_p, n_s) -> p and its cluster-bootstrap interval
+    def prob(ind):  # ind: (n_p, n_s) -> p and its exact interval over the points
+        from analysis._calibration_rule import clopper_pearson
+
         per_point = ind.reshape(n_p, -1).mean(axis=1)
-        lo, hi = bootstrap_mean(per_point, seed=seed)
-        return {"p": float(per_point.mean()), "ci_low": lo, "ci_high": hi}
+        p = float(per_point.mean())
+        # Clopper-Pearson with the points as the independent draws (Korn & Graubard 1998:
+        # effective count p n_p of n_p; a point's seeds are not independent of each other)
+        lo, hi = clopper_pearson(p * n_p, n_p)
+        return {"p": p, "ci_low": lo, "ci_high": hi, "k_runs": int(ind.sum()),
+                "n_runs": int(ind.size), "n_points": int(n_p)}
 
     out = {"n_points": int(n_p), "n_seeds": int(n_s), "runs_per_point": int(n_s),
            "all_nine": prob(np.all(same, axis=(2, 3))),
