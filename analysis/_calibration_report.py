@@ -42,13 +42,19 @@ def _answer(r: dict) -> list[str]:
         f"seeds per candidate, threshold {ver['threshold']:.2f}) accepts a planted truth "
         f"{cov['k']:.0f} of {cov['n']:.0f} times ({_pct(cov)}; nominal 95 %) and rules out "
         "points at unit-cube distance " + ", ".join(
-            f"{d}: {_pct(x)}" for d, x in pw.items()) + (
-            " -- too loose to decide at distance 0.3 (below 90 %)." if pl["too_loose"] else "."),
+            f"{d}: {_pct(x)}" for d, x in pw.items())
+        + f", both at the verdict's model discrepancy of {100 * pl['delta']:.0f} %" + (
+            ": too loose to decide (power below 90 % at distance 0.3)." if pl["too_loose"]
+            else ".") + "  At discrepancy " + "; ".join(
+            f"{100 * float(dl):.0f} %: coverage {_pct(x['coverage'])}, power at 0.3 "
+            f"{_pct(x['power'][max(x['power'], key=float)])}"
+            for dl, x in pl.get("by_delta", {}).items()) + ".",
         "**Does any plausible setting reproduce Tables 1-3?** "
         + (f"Yes: {v['count']} of {ver['n_candidates']} candidates are not ruled out"
-           if v["count"] else f"None of the {ver['n_candidates']} candidates closest to the "
-           "tables is") + f" (model discrepancy {100 * ver['delta']:.0f} %; smallest max "
-        f"implausibility {v['min_max_implausibility']:.1f}); at discrepancy " + ", ".join(
+           if v["count"] else
+           f"None of the {ver['n_candidates']} candidates examined is")
+        + f" (model discrepancy {100 * ver['delta']:.0f} %; smallest max implausibility "
+        f"{v['min_max_implausibility']:.1f}); at discrepancy " + ", ".join(
             f"{100 * float(d):.0f} %: {x['count']}" for d, x in ver["by_delta"].items())
         + f".  Scope: {ver['scope']}.  The earlier '0 of 4,096 feasible' is retracted.",
         f"**Closest fit.** rms log ratio {fit['rms_log_ratio']:.3f} (factor "

@@ -172,13 +172,27 @@ def planted(ev, space, n_truths: int, rule_seeds: Sequence[int],
     res = ev.evaluate(tasks, "planted truths")
     per = 2 + len(distances)
     c = threshold(len(rule_seeds))
+    at = {dl: _planted_at(res, per, n_truths, distances, away, c, dl) for dl in DELTAS}
+    head = at[DELTA]  # the verdict's discrepancy: the rule as it is applied
+    return {"n_truths": n_truths, "rule_seeds": list(rule_seeds), "threshold": c,
+            "truth_seeds": [TRUTH_SEED0, TRUTH_SEED0 + n_truths - 1], "generator_seed": seed,
+            "delta": DELTA, "nominal": LEVEL, **head,
+            "by_delta": {f"{dl:g}": {k: v for k, v in r.items()
+                                     if k in ("coverage", "power", "too_loose")}
+                         for dl, r in at.items()},
+            "truths_u": truths.tolist()}  # fmt: skip
+
+
+def _planted_at(res, per, n_truths, distances, away, c, delta) -> dict:
+    """Coverage and power of the rule at discrepancy ``delta`` from the planted runs."""
     imax_truth, imax_away, which = [], [], []
     for t in range(n_truths):
         z = printed_round(_nums(res[per * t])[0])
-        i_t = capped(implausibility(_nums(res[per * t + 1]), z))
+        i_t = capped(implausibility(_nums(res[per * t + 1]), z, delta))
         imax_truth.append(float(i_t.max()))
         which.append(int(np.argmax(i_t)))
-        imax_away.append([float(capped(implausibility(_nums(res[per * t + 2 + j]), z)).max())
+        imax_away.append([float(capped(implausibility(_nums(res[per * t + 2 + j]), z,
+                                                      delta)).max())
                           for j in range(len(distances))])  # fmt: skip
     it, ia = np.array(imax_truth), np.array(imax_away).reshape(n_truths, len(distances))
     acc = int(np.sum(it <= c))
@@ -190,15 +204,12 @@ def planted(ev, space, n_truths: int, rule_seeds: Sequence[int],
                            "actual_distance_median": float(np.median(dist)),
                            "median_max_implausibility": float(np.median(ia[:, j]))}
     worst = np.bincount(which, minlength=36)
-    return {"n_truths": n_truths, "rule_seeds": list(rule_seeds), "threshold": c,
-            "truth_seeds": [TRUTH_SEED0, TRUTH_SEED0 + n_truths - 1], "generator_seed": seed,
-            "delta": 0.0, "coverage": proportion(acc, n_truths), "nominal": LEVEL,
-            "power": power, "too_loose": bool(power[f"{max(distances):g}"]["p"] < 0.9),
+    return {"coverage": proportion(acc, n_truths), "power": power,
+            "too_loose": bool(power[f"{max(distances):g}"]["p"] < 0.9),
             "max_implausibility_at_truth": {"median": float(np.median(it)),
                                             "q90": float(np.quantile(it, 0.9)),
                                             "max": float(it.max())},
-            "truths_u": truths.tolist(), "max_implausibility_truth": it.tolist(),
-            "max_implausibility_away": ia.tolist(),
+            "max_implausibility_truth": it.tolist(), "max_implausibility_away": ia.tolist(),
             "largest_at_truth": {prior.NUMBER_NAMES[i]: int(n) for i, n in enumerate(worst)
                                  if n}}  # fmt: skip
 

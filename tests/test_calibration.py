@@ -471,7 +471,7 @@ def _rerun_planted(record: dict, t: int) -> None:
     _, truth = run_task(space.task(u, (rule.TRUTH_SEED0 + t,)))
     _, runs = run_task(space.task(u, tuple(pl["rule_seeds"])))
     z = rule.printed_round(rule._nums(truth)[0])
-    got = float(rule.capped(rule.implausibility(rule._nums(runs), z)).max())
+    got = float(rule.capped(rule.implausibility(rule._nums(runs), z, pl["delta"])).max())
     assert got == pytest.approx(pl["max_implausibility_truth"][t], rel=1e-9)
 
 
@@ -515,12 +515,16 @@ def test_quick_study_is_whole_and_checks(quick):
 
 def test_quick_planted_truths_at_fixed_seeds(quick):
     """The quick level's planted truths (fixed generator and seeds): every truth accepted at
-    its own setting (3 of 3), every point at distance 0.3 ruled out, and the record's counts
-    are its implausibilities'."""
+    its own setting (3 of 3) at the verdict's discrepancy; at zero discrepancy every point at
+    distance 0.3 is ruled out, at the verdict's 10 % none is (the rule is then too loose, and
+    the record says so); the headline is the verdict's discrepancy."""
     _, record = quick
     pl = record["planted"]
+    assert pl["delta"] == 0.1
     assert pl["coverage"]["k"] == pl["n_truths"] == 3
-    assert pl["power"]["0.3"]["k"] == 3
+    assert pl["by_delta"]["0"]["power"]["0.3"]["k"] == 3
+    assert pl["by_delta"]["0.1"]["power"]["0.3"]["k"] == pl["power"]["0.3"]["k"] == 0
+    assert pl["too_loose"] and not pl["by_delta"]["0"]["too_loose"]
     assert pl["coverage"]["ci_low"] > 0 and pl["coverage"]["ci_high"] == 1.0
 
 

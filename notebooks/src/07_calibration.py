@@ -50,7 +50,9 @@ print(f"coverage: {pl['coverage']['k']:.0f} of {pl['n_truths']} truths accepted,
       " (Clopper-Pearson; nominal 95 %)")
 for d, p in pl["power"].items():
     print(f"  ruled out at distance {d}: {ci(p)}")
-print("too loose to decide at 0.3:", pl["too_loose"])
+print("too loose to decide at 0.3:", pl["too_loose"], f"(at the verdict's discrepancy {pl['delta']})")
+for dl, x in pl["by_delta"].items():  # the same planted runs, scored at each discrepancy
+    print(f"  discrepancy {dl}: coverage {ci(x['coverage'])}, ruled out at 0.3: {ci(x['power']['0.3'])}")
 # %%
 from analysis import _calibration_figures as figures
 
