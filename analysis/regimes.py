@@ -237,6 +237,7 @@ def run(out, *, quick: bool = False, workers: int | None = None, level: str | No
         for base in (Path(out), COMMITTED):
             rec = common.load_record(base, STEM)
             if rec and rec.get("level") in LEVELS and "arms_run" in rec:
+                rec["verdict"] = report.verdicts(rec)  # the rule of this code, on the record
                 rec["figures"] = [common.save_figure(out, f"{STEM}_contrasts.png",
                                                      report.figure(rec))]  # fmt: skip
                 common.write_record(out, STEM, rec)

@@ -142,7 +142,8 @@ def test_the_model_recovers_a_planted_contrast():
     assert report.classify(fit["mechanisms"]["lag"], False) == "pays"
     assert report.classify(fit["mechanisms"]["slip"], False) == "costs"
     assert report.classify(fit["mechanisms"]["ideal"], False) == "same within 5 %"
-    assert report.classify(fit["mechanisms"]["ideal"], True) == "costs"
+    assert report.classify(fit["mechanisms"]["ideal"], True) == "costs (divergence)"
+    assert report.classify(fit["mechanisms"]["ideal"], -1) == "pays (divergence)"  # b diverges more
     assert report.classify({**fit["mechanisms"]["lag"], "n": 5}, False) == "undecided"
 
 
@@ -303,3 +304,25 @@ def test_a_committed_recovery_cell_is_its_runs():
                            [r["recovery_rmse"] for r in b], [r["diverged"] for r in b])
     assert got == rec["contrasts"]["adaptive-pid - pid"][sc_name]
     assert rec["arms"][sc_name]["pid"]["n"] == len(b)
+
+
+def test_a_tuned_verdict_is_withheld_when_a_tuning_did_not_converge():
+    """The audit's rule: a tuned contrast whose arms' restarts disagree measures the tuning,
+    so its verdict is withheld; the same record with agreeing restarts gets a verdict, and the
+    defaults' verdict stands beside it either way."""
+    import copy
+
+    record = json.loads((Path(__file__).resolve().parents[1] / "paper" / "results"
+                         / "regimes.json").read_text())  # fmt: skip
+    ia = "iapid-nn-dekf - adaptive-pid"
+    arms = record["tuning"]["arms"]["raw"]
+    assert not arms["iapid-nn-dekf"]["agreement"]["agree"]  # as committed
+    v = report.verdicts(record)["mechanisms"]["ideal"][ia]
+    assert v["poses"]["raw"]["verdict"] == "withheld" and v["default"]["verdict"]
+    fixed = copy.deepcopy(record)
+    for a in ("iapid-nn-dekf", "adaptive-pid"):
+        fixed["tuning"]["arms"]["raw"][a]["agreement"]["agree"] = True
+    assert report.verdicts(fixed)["mechanisms"]["ideal"][ia]["poses"]["raw"]["verdict"] != \
+        "withheld"
+    assert report.verdicts(fixed)["mechanisms"]["mujoco"][ia]["poses"]["raw"]["verdict"] == \
+        "withheld"  # MuJoCo stays withheld: tuned on kinematic plants

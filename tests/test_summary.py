@@ -84,12 +84,14 @@ def test_the_summary_is_short_and_its_paragraphs_have_at_most_three_sentences():
 
 
 #: Decimals of the summary not read from a record's floats: the 0.1 of a record key's name
-#: (``printed_fraction_above_0.1``).
-_CITED = {"0.1"}
+#: (``printed_fraction_above_0.1``) and the calibration power's distance 0.3 (a key of its
+#: ``planted.power``, the rule's design constant).
+_CITED = {"0.1", "0.3"}
 
 
-#: The k-th float of a record is scaled by 1.2 + 0.5 frac(k phi) (phi the golden ratio): unequal
-#: and not periodic, so that a ratio of two numbers moves too.
+#: The k-th float of a record is scaled by 2 + frac(k phi) (phi the golden ratio): unequal and
+#: not periodic, so that a ratio of two numbers moves too, and at least 2x, so that a number
+#: printed to one significant digit moves as well.
 PHI = (1 + 5**0.5) / 2
 
 
@@ -98,7 +100,7 @@ def _perturb(obj, count):
         return obj
     if isinstance(obj, float):
         count[0] += 1
-        return obj * (1.2 + 0.5 * ((count[0] * PHI) % 1.0))
+        return obj * (2.0 + (count[0] * PHI) % 1.0)
     if isinstance(obj, list):
         return [_perturb(x, count) for x in obj]
     if isinstance(obj, dict):

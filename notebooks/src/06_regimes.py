@@ -95,6 +95,7 @@ if "verdict" in record and "arms_run" in record:
             x = v[name]
             ci = "" if x["ratio"] is None else (f" {x['ratio']:.3f} [{x['ratio_ci'][0]:.3f}, "
                                                 f"{x['ratio_ci'][1]:.3f}]")
-            print(f"{m:<24} {name:<30} {x['verdict']}{ci}")
+            dflt = x.get("default", {}).get("verdict", "-")
+            print(f"{m:<24} {name:<30} tuned: {x['verdict']}{ci}; defaults: {dflt}")
 else:
     print("no record of the matched design (run `python -m analysis.regimes`)")
