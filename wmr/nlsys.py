@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from wmr import loop, metrics
+from wmr.ekf import pose_work
 from wmr.scenario import Scenario
 
 __all__ = ["INPUTS", "OUTPUTS", "Layout", "ClosedLoop", "closed_loop", "inputs", "update_function"]
@@ -192,7 +193,7 @@ def update_function(run: loop.Prepared, layout: Layout):
     one_step = loop.python_step(run)
     dt, p, integrator = sc.dt, run.p, run.integrator
     v_max, w_max, bound = sc.limits.v_max, sc.limits.w_max, math.inf
-    scratch = (np.zeros(2), np.zeros(2), np.zeros(3))  # as in the kernel
+    scratch = (np.zeros(2), np.zeros(2), np.zeros(3), pose_work())  # as in the kernel
     acc, status, none = np.zeros(metrics.N_ACC), np.zeros(2, dtype=np.int64), np.zeros((0, 0))
     plant_arrays = (run.plant_table, run.plant_at, run.plant_ints, run.plant_vel,
                     run.plant_buffer)  # fmt: skip
@@ -205,7 +206,7 @@ def update_function(run: loop.Prepared, layout: Layout):
         stopped = one_step(k, 0, dt, integrator, p, s, theta, P, q, q_hat, ref,
                            u[0:3].reshape(1, 3), run.use_ekf, Pq, run.Qp, run.Rp,
                            run.disturbance, v_max, w_max, bound, plant_arrays, acc,
-                           metrics.TRANSIENT, status, scratch, False, (none,) * 5)  # fmt: skip
+                           metrics.TRANSIENT, status, scratch, (none,) * 5)  # fmt: skip
         if stopped and status[1] == 1:
             x[:] = np.nan  # the kernel stops the run here
         return x

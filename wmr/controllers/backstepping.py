@@ -19,7 +19,7 @@ import numpy as np
 
 from wmr._jit import njit
 from wmr._settings import check
-from wmr.kinematics import tracking_error
+from wmr.kinematics import tracking_error_parts
 
 __all__ = ["Settings", "State", "STATE_NAMES", "pack", "final_state", "law"]
 
@@ -68,8 +68,8 @@ def final_state(p, s, theta, P) -> State:
 @njit
 def law(p, s, theta, P, q_hat, ref, dt, u):
     """Write the backstepping input ``u = (v, w)`` for estimate ``q_hat`` and sample ``ref``."""
-    e = tracking_error(q_hat, ref, p[3] != 0.0)
+    e1, e2, e3 = tracking_error_parts(q_hat, ref, p[3] != 0.0)
     v_r = ref[3]
     w_r = ref[4]
-    u[0] = v_r * math.cos(e[2]) + p[0] * e[0]
-    u[1] = w_r + v_r * (p[1] * e[1] + p[2] * math.sin(e[2]))
+    u[0] = v_r * math.cos(e3) + p[0] * e1
+    u[1] = w_r + v_r * (p[1] * e2 + p[2] * math.sin(e3))
