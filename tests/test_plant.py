@@ -37,8 +37,7 @@ def drive(spec: scn.Plant, commands, q0=(0.0, 0.0, 0.0), dt=DT):
     poses = [q.copy()]
     for k, c in enumerate(commands):
         u[:] = c
-        half(k, dt, run.integrator, u, ua, q, run.q_hat, run.Pq, run.Qp, False, run.disturbance,
-             arrays, None, None)  # fmt: skip
+        half(k, dt, run.integrator, u, ua, q, run.disturbance, arrays, None)
         poses.append(q.copy())
     return np.array(poses), run.plant_vel
 

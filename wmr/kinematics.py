@@ -63,7 +63,7 @@ def integrator_code(name: str | int) -> int:
         ) from None
 
 
-@njit
+@njit(inline="always")
 def wrap_angle(a):
     """Wrap an angle [rad] to (-pi, pi]."""
     r = math.atan2(math.sin(a), math.cos(a))
@@ -92,7 +92,7 @@ def input_matrix(theta):
     return G
 
 
-@njit
+@njit(inline="always")
 def sinc(a):
     """``s(a) = sin(a)/a``, by its Taylor series near 0 (error < 1e-17 there)."""
     if abs(a) < 1e-4:
@@ -101,7 +101,7 @@ def sinc(a):
     return math.sin(a) / a
 
 
-@njit
+@njit(inline="always")
 def sinc_and_derivative(a):
     """``s(a) = sin(a)/a`` (:func:`sinc`) and ``s'(a)``, by Taylor series near 0 (error < 1e-17
     there)."""
@@ -161,7 +161,7 @@ def step(q, u, dt, integrator=EXACT):
     return out
 
 
-@njit
+@njit(inline="always")
 def step_into(q, u, dt, integrator, out):
     """:func:`step` written into ``out`` (3,), which may be ``q`` itself (the pose advanced in
     place); no allocation.  The RK4 stages are held in scalars, summed in the order of the
@@ -239,43 +239,51 @@ def step_jacobians(q, u, dt, integrator=EXACT):
     return F, G
 
 
-@njit
+@njit(inline="always")
 def step_jacobians_into(q, u, dt, integrator, F, G):
-    """:func:`step_jacobians` written into ``F`` (3, 3) and ``G`` (3, 2); no allocation for the
-    exact and Euler steps (the RK4 tangents are propagated in temporary matrices)."""
+    """:func:`step_jacobians` written into ``F`` (3, 3) and ``G`` (3, 2); either may be None (not
+    computed: the branch is pruned at compile time).  No allocation for the exact and Euler
+    steps (the RK4 tangents are propagated in temporary matrices)."""
+    if integrator != EXACT and integrator != EULER:
+        _rk4_jacobians(q, u, dt, F, G)
+        return
     v = u[0]
     w = u[1]
-    F[:, :] = 0.0
-    G[:, :] = 0.0
-    F[0, 0] = F[1, 1] = F[2, 2] = 1.0
+    if F is not None:
+        F[:, :] = 0.0
+        F[0, 0] = F[1, 1] = F[2, 2] = 1.0
+    if G is not None:
+        G[:, :] = 0.0
     if integrator == EXACT:
         a = 0.5 * w * dt
         s, ds = sinc_and_derivative(a)
         phi = q[2] + a
         c = math.cos(phi)
         sn = math.sin(phi)
-        F[0, 2] = -v * dt * s * sn
-        F[1, 2] = v * dt * s * c
-        G[0, 0] = dt * s * c
-        G[1, 0] = dt * s * sn
-        G[0, 1] = 0.5 * v * dt * dt * (ds * c - s * sn)
-        G[1, 1] = 0.5 * v * dt * dt * (ds * sn + s * c)
-        G[2, 1] = dt
-    elif integrator == EULER:
+        if F is not None:
+            F[0, 2] = -v * dt * s * sn
+            F[1, 2] = v * dt * s * c
+        if G is not None:
+            G[0, 0] = dt * s * c
+            G[1, 0] = dt * s * sn
+            G[0, 1] = 0.5 * v * dt * dt * (ds * c - s * sn)
+            G[1, 1] = 0.5 * v * dt * dt * (ds * sn + s * c)
+            G[2, 1] = dt
+    else:
         c = math.cos(q[2])
         sn = math.sin(q[2])
-        F[0, 2] = -dt * v * sn
-        F[1, 2] = dt * v * c
-        G[0, 0] = dt * c
-        G[1, 0] = dt * sn
-        G[2, 1] = dt
-    else:
-        _rk4_jacobians(q, u, dt, F, G)
+        if F is not None:
+            F[0, 2] = -dt * v * sn
+            F[1, 2] = dt * v * c
+        if G is not None:
+            G[0, 0] = dt * c
+            G[1, 0] = dt * sn
+            G[2, 1] = dt
 
 
 @njit
 def _rk4_jacobians(q, u, dt, F, G):
-    """The RK4 step's Jacobians (see :func:`step_jacobians`) into ``F`` and ``G``."""
+    """The RK4 step's Jacobians (see :func:`step_jacobians`) into ``F`` and ``G`` (or None)."""
     A = np.empty((3, 3))
     B = np.empty((3, 2))
     Fq = np.zeros((3, 3))  # running sum of weighted stage tangents wrt q
@@ -297,8 +305,10 @@ def _rk4_jacobians(q, u, dt, F, G):
         k = unicycle_rhs(qi, u)
         Fq += weights[i] * dk_dq
         Fu += weights[i] * dk_du
-    F[:, :] = eye + dt / 6.0 * Fq
-    G[:, :] = dt / 6.0 * Fu
+    if F is not None:
+        F[:, :] = eye + dt / 6.0 * Fq
+    if G is not None:
+        G[:, :] = dt / 6.0 * Fu
 
 
 @njit
@@ -332,7 +342,7 @@ def tracking_error(q, q_r, printed=False):
     return e
 
 
-@njit
+@njit(inline="always")
 def tracking_error_parts(q, q_r, printed=False):
     """:func:`tracking_error` as the scalars ``(e1, e2, e3)``: no allocation (the laws' form)."""
     c = math.cos(q[2])

@@ -15,10 +15,11 @@ One step ``k`` (``t_k = k dt``, ``k = 0 .. N-1``; DESIGN §3.1, §3.3), as phase
 4. :func:`score` -- the RMSE of eq. (64) is accumulated over the true poses (``wmr.metrics``) and
    the run is checked: a non-finite value or a position error beyond ``divergence_bound`` stops it.
 
-The order is written once, in :func:`_step_template`.  Two drivers run it: the compiled kernel
-(:func:`kernel`, numba; a copy of the step per controller law and plant kind, the law a global of
-the copy) and the Python driver (:func:`python_step`; the same step as plain Python, calling the
-same jitted phases), which runs what numba cannot compile -- a Python-level controller
+The order is written once, as the body of the loop of :func:`_advance_template` (the plant half
+in :func:`_plant_template`).  Two drivers run it: the compiled kernel (:func:`kernel`, numba; a
+copy of the loop per controller law and plant kind, the law a global of the copy) and the Python
+driver (:func:`python_step`; the same loop as plain Python, calling the same jitted phases),
+which runs what numba cannot compile -- a Python-level controller
 (``wmr.controllers.PyController``: an optimiser in the loop, a plugin prototype), a Python-level
 plant, per-step probes (``wmr.probes``) -- and the python-control comparator (``wmr.nlsys``).
 :func:`run` picks the driver; either way the numbers are the same, bit for bit.
@@ -61,6 +62,8 @@ __all__ = [
     "prepare",
     "seed_sequences",
     "sense",
+    "measure",
+    "estimate",
     "saturate",
     "disturb",
     "score",
@@ -108,12 +111,28 @@ def _within_wmr(path: str) -> bool:
 
 
 @njit(inline="always")
-def sense(k, q, noise, i, q_hat, Pq, use_ekf, Rp, z, work):
-    """Phase 1: measure ``z = q + noise[i]`` and estimate ``q_hat`` in place; returns the pose
-    filter's NIS (NaN without the filter or at ``k = 0``, where the estimate is the measurement
-    and ``Pq = Rp``: no prior).  ``work``: the pose filter's scratch (``wmr.ekf.pose_work``)."""
+def measure(q, noise, i, z):
+    """Phase 1a: the measurement ``z = q + noise[i]`` (in place)."""
     for j in range(3):
         z[j] = q[j] + noise[i, j]
+
+
+@njit
+def sense(k, q, noise, i, q_hat, Pq, use_ekf, Rp, z, work):
+    """Phase 1: measure ``z = q + noise[i]`` (:func:`measure`) and estimate ``q_hat`` in place
+    (:func:`estimate`); returns the pose filter's NIS (NaN without the filter or at ``k = 0``).
+    The loop calls the two halves itself (see :func:`_advance_template`)."""
+    measure(q, noise, i, z)
+    return estimate(k, z, q_hat, Pq, use_ekf, Rp, work)
+
+
+@njit
+def estimate(k, z, q_hat, Pq, use_ekf, Rp, work):
+    """Phase 1b: the estimate ``q_hat`` from the measurement ``z``, in place: ``z`` itself, or the
+    pose filter's update (errata E9, reading A; at ``k = 0`` the estimate is the measurement and
+    ``Pq = Rp``: no prior); returns the filter's NIS (NaN without a filter update).  ``work``:
+    the filter's scratch (``wmr.ekf.pose_work``).  A call of its own, not inlined: its branches
+    would keep the loop's reference counts on its arrays (measured)."""
     if not use_ekf:
         q_hat[:] = z
         return math.nan
@@ -143,96 +162,108 @@ def disturb(t, ua, disturbance):
             ua[1] += disturbance[d, 3]
 
 
-@njit(inline="always")
+@njit
 def score(k, dt, q, r, u, acc, t_tail, bound):
     """Phase 4: accumulate the errors of the pose at ``t_{k+1}`` against the reference row ``r``
     and the command ``u`` that led there (``wmr.metrics.accumulate``), then check the pose;
     returns the cause code (0: go on)."""
     d2 = metrics.accumulate(acc, q, r, (k + 1) * dt >= t_tail, u)
-    if not (math.isfinite(q[0]) and math.isfinite(q[1]) and math.isfinite(q[2])):
-        return 1
-    if d2 > bound * bound:
-        return 2
-    return 0
+    finite = math.isfinite(q[0]) & math.isfinite(q[1]) & math.isfinite(q[2])  # no branch
+    return 1 if not finite else (2 if d2 > bound * bound else 0)
 
 
 # ---------------------------------------------------------------------------------------------
 # The step, written once, and the two drivers built from it
 
-def _step_template(
-    k, i, dt, integrator, p, s, theta, P,
+def _advance_template(
+    p, s, theta, P,
+    k0, k1, dt, integrator,
     q, q_hat, ref, noise, use_ekf, Pq, Qp, Rp,
-    disturbance, v_max, w_max, bound, plant_arrays, acc, t_tail, status, scratch, logs,
+    disturbance, v_max, w_max, bound,
+    plant_table, plant_at, plant_ints, plant_vel, plant_buffer,
+    acc, t_tail, status, q_log, qhat_log, u_log, s_log, vel_log, scratch=None,
 ):  # fmt: skip
-    """One step ``k`` of the loop (DESIGN §3.1, §3.3), in its one order: sense -> law ->
-    saturate -> delay -> disturb -> plant -> pose predict -> score.  Returns True when the run
-    stops (``status = (step, cause)`` written).
+    """Steps ``k = k0 .. k1-1`` of the loop (DESIGN §3.1, §3.3), each in its one order: sense ->
+    law -> saturate -> delay -> disturb -> plant -> pose predict -> score.  Returns True when the
+    run stopped (``status = (step, cause)`` written), at once.
 
     The control half is phases 1-2 (:func:`sense`, the controller's ``law``, :func:`saturate`),
-    the plant half phase 3 (``plant_half``, a copy of :func:`_plant_template`, with the pose
-    filter's prediction with the commanded ``u``, which knows neither the delay, the disturbance
-    nor the true plant), then :func:`score`.  ``ref`` holds the reference rows of the chunk and
-    ``noise`` its measurement noise (row ``i = k - k0``).  Tuples keep the call under CPython's
-    30 arguments (beyond them a call is compiled as ``f(*args)``, which numba cannot inline):
-    ``plant_arrays = (table, at, ints, vel, buffer)`` of ``wmr.plant.arrays``, ``scratch = (u,
-    ua, z, work)`` (``work`` the pose filter's, ``wmr.ekf.pose_work``) and ``logs = (q, q_hat,
-    u, state, vel)`` of :class:`Logs` (written only by a copy with ``KEEP``).
+    the plant half phase 3 (``plant_half``, a copy of :func:`_plant_template`), then the pose
+    filter's prediction with the commanded ``u`` (which knows neither the delay, the disturbance
+    nor the true plant) and :func:`score`.  ``ref`` holds the reference rows ``k0 .. k1``
+    (``ref[i]`` at ``t_k``, ``i = k - k0``; the last row is where the last pose is scored) and
+    ``noise`` the measurement noise of the steps; ``*_log`` are the arrays of :class:`Logs`
+    (written only by a copy with ``KEEP``).  ``scratch = (u, ua, z, work)``: the command, the
+    applied command, the measurement and the pose filter's scratch (``wmr.ekf.pose_work``),
+    made here once per call when not given (a caller that steps one ``k`` at a time, the
+    python-control comparator, hands in its own).
 
     This function is never called as written: :func:`_bind` makes copies of it whose globals fix
     what varies -- ``law`` (the controller), ``PLANT`` (one of the ``PLANT_*`` kinds) and
-    ``pyplant``, ``ORACLE`` (the loop writes the true pose into ``p.truth``), ``KEEP`` (the
-    logs of a kept trajectory are written), ``PROBE`` and ``probe`` (per-step hooks).  The
-    compiled kernel (:func:`kernel`) jits such a copy with ``PROBE = False`` and a non-Python
-    plant, so the unused branches are pruned at compile time; the Python driver
-    (:func:`python_step`) runs a copy as plain Python, calling the same jitted phases, with a
-    Python-level law or plant where needed.  Same inputs, same numbers.
+    ``pyplant``, ``ORACLE`` (the loop writes the true pose into ``p.truth``), ``KEEP`` (the logs
+    of a kept trajectory are written), ``PROBE`` and ``probe`` (per-step hooks).  The compiled
+    kernel (:func:`kernel`) jits such a copy with ``PROBE = False`` and a non-Python plant, so
+    the unused branches are pruned at compile time; the Python driver runs a copy as plain
+    Python, calling the same jitted phases, with a Python-level law or plant where needed.  Same
+    inputs, same numbers.
+
+    The step is the body of this loop, not a function the loop calls: numba's inlining of a
+    callee increments and decrements the reference count of every array it is handed, at every
+    call, unless its body is simple enough for the pruning pass (measured: a third of the
+    backstepping kernel's time).  For the same reason the inlined phases are branch-free and the
+    branching ones (:func:`estimate`, the pose filter) are called from the loop's body.
     """
+    if scratch is None:
+        scratch = (np.zeros(2), np.zeros(2), np.zeros(3), pose_work())
     u, ua, z, work = scratch
-    q_log, qhat_log, u_log, s_log, vel_log = logs
-    nis = sense(k, q, noise, i, q_hat, Pq, use_ekf, Rp, z, work)
-    if PROBE:  # noqa: F821 - the globals of this template are bound per copy by _bind()
-        if probe.after_estimate is not None:  # noqa: F821
-            probe.after_estimate(k, q, q_hat, Pq, nis)  # noqa: F821
-        if probe.before_law is not None:  # noqa: F821
-            probe.before_law(k, p, s, theta, P, q_hat)  # noqa: F821
-    if ORACLE:  # noqa: F821 - a diagnostic arm reads the true pose
-        p.truth[0] = q[0]
-        p.truth[1] = q[1]
-        p.truth[2] = q[2]
-    law(p, s, theta, P, q_hat, ref[i], dt, u)  # noqa: F821
-    finite = saturate(u, v_max, w_max)
-    if PROBE:  # noqa: F821
-        if probe.after_law is not None:  # noqa: F821
-            probe.after_law(k, p, s, theta, P, q_hat, u)  # noqa: F821
-    if KEEP:  # noqa: F821
-        qhat_log[k, :] = q_hat
-        u_log[k, :] = u
-        s_log[k, :] = s[: s_log.shape[1]]
-    if not finite:
-        status[0] = k
-        status[1] = 1
-        return True
-    plant_half(k, dt, integrator, u, ua, q, q_hat, Pq, Qp, use_ekf, disturbance,  # noqa: F821
-               plant_arrays, vel_log, work)  # fmt: skip
-    if KEEP:  # noqa: F821
-        q_log[k + 1, :] = q
-    cause = score(k, dt, q, ref[i + 1], u, acc, t_tail, bound)
-    if cause != 0:
-        status[0] = k + 1
-        status[1] = cause
-        return True
+    plant_arrays = (plant_table, plant_at, plant_ints, plant_vel, plant_buffer)
+    for k in range(k0, k1):
+        i = k - k0
+        measure(q, noise, i, z)  # sense, in two calls (see below)
+        nis = estimate(k, z, q_hat, Pq, use_ekf, Rp, work)
+        if PROBE:  # noqa: F821 - the globals of this template are bound per copy by _bind()
+            if probe.after_estimate is not None:  # noqa: F821
+                probe.after_estimate(k, q, q_hat, Pq, nis)  # noqa: F821
+            if probe.before_law is not None:  # noqa: F821
+                probe.before_law(k, p, s, theta, P, q_hat)  # noqa: F821
+        if ORACLE:  # noqa: F821 - a diagnostic arm reads the true pose
+            p.truth[0] = q[0]
+            p.truth[1] = q[1]
+            p.truth[2] = q[2]
+        law(p, s, theta, P, q_hat, ref[i], dt, u)  # noqa: F821
+        finite = saturate(u, v_max, w_max)
+        if PROBE:  # noqa: F821
+            if probe.after_law is not None:  # noqa: F821
+                probe.after_law(k, p, s, theta, P, q_hat, u)  # noqa: F821
+        if KEEP:  # noqa: F821
+            qhat_log[k, :] = q_hat
+            u_log[k, :] = u
+            s_log[k, :] = s[: s_log.shape[1]]
+        if not finite:
+            status[0] = k
+            status[1] = 1
+            return True
+        plant_half(k, dt, integrator, u, ua, q, disturbance, plant_arrays, vel_log)  # noqa: F821
+        if use_ekf:  # the filter predicts with the commanded u: it knows no delay, disturbance
+            pose_predict(q_hat, Pq, u, dt, integrator, Qp, work)  # or true plant
+        if KEEP:  # noqa: F821
+            q_log[k + 1, :] = q
+        cause = score(k, dt, q, ref[i + 1], u, acc, t_tail, bound)
+        if cause != 0:
+            status[0] = k + 1
+            status[1] = cause
+            return True
     return False
 
 
-def _plant_template(k, dt, integrator, u, ua, q, q_hat, Pq, Qp, use_ekf, disturbance,
-                    plant_arrays, vel_log, work):  # fmt: skip
+def _plant_template(k, dt, integrator, u, ua, q, disturbance, plant_arrays, vel_log):
     """The plant half of step ``k`` (phase 3): the saturated command ``u`` is delayed
     (``wmr.plant.delayed``), disturbed (:func:`disturb`) into ``ua`` and drives the true robot
     over ``[t_k, t_k + dt]`` -- the ideal unicycle, the parameter table or the Python-level
-    ``pyplant`` (``PLANT``, bound per copy as in :func:`_step_template`) -- then the pose filter
-    predicts with ``u`` and its nominal model (``work``: its scratch).  Mutates ``q`` (the true
-    pose), ``q_hat``, ``Pq`` and the plant's arrays; logs the actual ``(v, w)`` at ``t_k`` into
-    ``vel_log`` when ``KEEP``."""
+    ``pyplant`` (``PLANT``, bound per copy as in :func:`_advance_template`).  Mutates ``q`` (the
+    true pose) and the plant's arrays ``plant_arrays = (table, at, ints, vel, buffer)``
+    (``wmr.plant.arrays``); logs the actual ``(v, w)`` at ``t_k`` into ``vel_log`` when
+    ``KEEP``.  (The pose filter's prediction follows it in the loop.)"""
     plant_table, plant_at, plant_ints, plant_vel, plant_buffer = plant_arrays
     ua[0] = u[0]
     ua[1] = u[1]
@@ -251,29 +282,6 @@ def _plant_template(k, dt, integrator, u, ua, q, q_hat, Pq, Qp, use_ekf, disturb
     else:
         pyplant.advance(k, ua)  # noqa: F821
         pyplant.pose(q)  # noqa: F821
-    if use_ekf:
-        pose_predict(q_hat, Pq, u, dt, integrator, Qp, work)
-
-
-def _advance_template(
-    p, s, theta, P,
-    k0, k1, dt, integrator,
-    q, q_hat, ref, noise, use_ekf, Pq, Qp, Rp,
-    disturbance, v_max, w_max, bound,
-    plant_table, plant_at, plant_ints, plant_vel, plant_buffer,
-    acc, t_tail, status, q_log, qhat_log, u_log, s_log, vel_log,
-):  # fmt: skip
-    """Advance the loop over steps ``k0 .. k1-1`` (``ref`` holds rows ``k0 .. k1``) by the bound
-    copy of :func:`_step_template` (``one_step``, a global of each copy); returns early once the
-    run stopped.  The step's buffers are made here, once per call."""
-    scratch = (np.zeros(2), np.zeros(2), np.zeros(3), pose_work())
-    plant_arrays = (plant_table, plant_at, plant_ints, plant_vel, plant_buffer)
-    logs = (q_log, qhat_log, u_log, s_log, vel_log)
-    for k in range(k0, k1):
-        if one_step(k, k - k0, dt, integrator, p, s, theta, P,  # noqa: F821 - bound by _bind()
-                    q, q_hat, ref, noise, use_ekf, Pq, Qp, Rp, disturbance, v_max, w_max, bound,
-                    plant_arrays, acc, t_tail, status, scratch, logs):  # fmt: skip
-            return
 
 
 class _NoProbe:
@@ -303,16 +311,26 @@ def _copy(template, name: str, glb: dict):
 
 def _bind(name: str, law, plant_kind: int, oracle: bool, *, compiled: bool, keep: bool = False,
           pyplant=None, probe=None):  # fmt: skip
-    """``(plant_half, step, advance)``: copies of the three templates with their globals bound
-    (see :func:`_step_template`); jitted when ``compiled`` (the halves inlined into the loop)."""
-    jit = njit(inline="always") if compiled else (lambda f: f)
+    """``(plant_half, advance)``: copies of the two templates with their globals bound (see
+    :func:`_advance_template`); jitted when ``compiled`` (the plant half and the law inlined into
+    the loop)."""
+    if compiled:
+        law = _inlined(law)
     glb = {"law": law, "PLANT": int(plant_kind), "ORACLE": bool(oracle), "KEEP": bool(keep),
            "PROBE": probe is not None, "probe": _Hooks(probe) if probe is not None else _NoProbe,
            "pyplant": pyplant}  # fmt: skip
-    half = jit(_copy(_plant_template, f"_plant_{name}", glb))
-    one = jit(_copy(_step_template, f"_step_{name}", {**glb, "plant_half": half}))
-    adv = _copy(_advance_template, f"_advance_{name}", {**glb, "one_step": one})
-    return half, one, (njit(adv) if compiled else adv)
+    half = _copy(_plant_template, f"_plant_{name}", glb)
+    if compiled:
+        half = njit(inline="always")(half)
+    adv = _copy(_advance_template, f"_advance_{name}", {**glb, "plant_half": half})
+    return half, (njit(adv) if compiled else adv)
+
+
+def _inlined(law):
+    """The jitted ``law`` recompiled to be inlined into the kernel at numba's IR level (a call
+    would pass its parameters, a namedtuple of arrays, by value with their reference counts)."""
+    fn = getattr(law, "py_func", None)
+    return law if fn is None else njit(inline="always")(fn)
 
 
 _KERNELS: dict = {}
@@ -347,15 +365,16 @@ def kernel(name: str, law, plant_kind: int = PLANT_IDEAL, oracle: bool = False,
     key = (name, law, plant_kind, bool(oracle), bool(keep))
     if key not in _KERNELS:
         _KERNELS[key] = _bind(_kernel_name(name, law, plant_kind, oracle, keep), law, plant_kind,
-                              oracle, compiled=True, keep=keep)[2]  # fmt: skip
+                              oracle, compiled=True, keep=keep)[1]  # fmt: skip
     return _KERNELS[key]
 
 
 def python_step(run: Prepared, probe=None, keep: bool = False):
-    """The step of ``run`` as plain Python (the Python driver's, :func:`_step_template`), with
-    ``run``'s law, plant and oracle bound, ``probe``'s hooks called and the logs written when
-    ``keep``: for the probes, the python-control comparator (``wmr.nlsys``) and what numba cannot
-    compile."""
+    """The loop of ``run`` as plain Python (the Python driver's copy of
+    :func:`_advance_template`), with ``run``'s law, plant and oracle bound, ``probe``'s hooks
+    called and the logs written when ``keep``: ``f(p, s, theta, P, k0, k1, ...)`` advances steps
+    ``k0 .. k1-1`` (one at a time for the python-control comparator, ``wmr.nlsys``); for the
+    probes and what numba cannot compile."""
     c = run.controller
     return _bind(c.name, c.law, run.plant_kind, c.oracle, compiled=False, keep=keep,
                  pyplant=run.pyplant, probe=probe)[1]  # fmt: skip
@@ -363,8 +382,7 @@ def python_step(run: Prepared, probe=None, keep: bool = False):
 
 def plant_step(run: Prepared, keep: bool = False):
     """The plant half of ``run``'s step (:func:`_plant_template`) as plain Python: ``f(k, dt,
-    integrator, u, ua, q, q_hat, Pq, Qp, use_ekf, disturbance, plant_arrays, vel_log, work)``
-    (``work`` the pose filter's scratch, ``wmr.ekf.pose_work``; ``vel_log`` written when
+    integrator, u, ua, q, disturbance, plant_arrays, vel_log)`` (``vel_log`` written when
     ``keep``), for tests and tools that drive the true robot with given commands."""
     c = run.controller
     return _bind(c.name, c.law, run.plant_kind, c.oracle, compiled=False, keep=keep,
@@ -428,8 +446,7 @@ def run(run: Prepared, logs: Logs | None, probe=None, driver: str | None = None)
     if driver == "compiled":
         advance = kernel(c.name, c.law, run.plant_kind, c.oracle, keep)
     else:
-        advance = _bind(c.name, c.law, run.plant_kind, c.oracle, compiled=False, keep=keep,
-                        pyplant=run.pyplant, probe=probe)[2]  # fmt: skip
+        advance = python_step(run, probe, keep)
     _start(run, logs)
     if logs is None:
         logs = _NO_LOGS
