@@ -418,8 +418,12 @@ _NO_LOGS = Logs.empty(0, 0, False)
 def _start(run: Prepared, logs: Logs | None) -> None:
     """Score the initial pose at ``t_0`` (and log it)."""
     r0 = run.first_reference()
-    with np.errstate(over="ignore", invalid="ignore"):  # extreme scenarios diverge, not warn
-        metrics.accumulate_initial(run.acc, run.q, r0)
+    q, big = run.q, 1e150  # below it the squares cannot overflow: no warning to silence
+    if abs(r0[0]) < big and abs(r0[1]) < big and abs(q[0]) < big and abs(q[1]) < big:
+        metrics.accumulate_initial(run.acc, q, r0)
+    else:
+        with np.errstate(over="ignore", invalid="ignore"):  # extreme scenarios diverge, not warn
+            metrics.accumulate_initial(run.acc, run.q, r0)
     if logs is not None:
         logs.q[0] = run.q
         logs.ref[0] = r0

@@ -17,14 +17,14 @@ its numbers depend neither on how it is split nor on what ran before it in the p
 from __future__ import annotations
 
 import threading
-from collections import OrderedDict
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from wmr import controllers, metrics, plant
+from wmr._shared import SHARED
 from wmr.kinematics import integrator_code
 from wmr.references import ReferenceSampler
 from wmr.scenario import Scenario
@@ -54,46 +54,6 @@ TABLE_ROWS = 1 << 18
 PLANT_IDEAL, PLANT_TABLE, PLANT_PYTHON = 0, 1, 2
 
 
-class _Shared:
-    """What the runs of a scenario share, built once: ``get(parts, extra, build)`` returns
-    ``build()`` for the scenario's ``parts`` (immutable objects: a ``ReferenceSpec``, ``Plant``,
-    ...) and the hashable ``extra`` (``dt``, a name), computed on the first call and kept.
-
-    Keyed by the parts' identity (each is kept alive beside its value, so an identity is never
-    reused while its entry lives): a scenario and its ``dataclasses.replace`` copies share their
-    unchanged parts.  At most ``size`` entries per kind, the least recently used dropped.  The
-    values are read by the runs, never written (each run copies what it mutates)."""
-
-    def __init__(self, size: int = 32):
-        self.size = size
-        self._tables: dict[str, OrderedDict] = {}
-        self._lock = threading.Lock()
-
-    def get(self, kind: str, parts: tuple, extra, build: Callable):
-        key = (*map(id, parts), extra)
-        with self._lock:
-            table = self._tables.setdefault(kind, OrderedDict())
-            hit = table.get(key)
-            if hit is not None:
-                table.move_to_end(key)
-                return hit[1]
-        value = build()
-        with self._lock:
-            table[key] = (parts, value)
-            while len(table) > self.size:
-                table.popitem(last=False)
-        return value
-
-    def clear(self) -> None:
-        """Forget everything (tests; a process that changes the registry's rows in place)."""
-        with self._lock:
-            self._tables.clear()
-
-
-#: The per-process store of scenario set-up (:class:`_Shared`).
-SHARED = _Shared()
-
-
 def reference_table(scenario: Scenario) -> np.ndarray | None:
     """The reference rows ``0 .. N`` of ``scenario`` (shape (N + 1, 5); shared: do not write),
     or None when the run is longer than :data:`TABLE_ROWS`.  The longest table asked for is
@@ -121,6 +81,7 @@ class _Fixed:
     disturbance: np.ndarray
     integrator: int
     plant: tuple
+    quiet: bool  # the noise cannot overflow (finite std < 1e300): no np.errstate needed
 
 
 def _fixed(sc: Scenario) -> _Fixed:
@@ -128,8 +89,10 @@ def _fixed(sc: Scenario) -> _Fixed:
         Qp, Rp = sc.estimator.matrices(sc.noise)
         dist = np.array([(x.start, x.stop, *x.velocity) for x in sc.disturbances],
                         dtype=float).reshape(-1, 4)  # fmt: skip
-        return _Fixed(Qp, Rp, np.array(sc.noise.pose_std), dist, integrator_code(sc.integrator),
-                      plant.arrays(sc.plant, sc.dt))  # fmt: skip
+        std = np.array(sc.noise.pose_std)
+        quiet = bool(np.all(np.abs(std) < 1e300))  # a normal deviate is far below 1e8
+        return _Fixed(Qp, Rp, std, dist, integrator_code(sc.integrator),
+                      plant.arrays(sc.plant, sc.dt), quiet)  # fmt: skip
 
     parts = (sc.estimator, sc.noise, sc.disturbances, sc.plant)
     return SHARED.get("fixed", parts, (sc.dt, sc.integrator), build)
@@ -145,6 +108,11 @@ def seed_sequences(seed: int | np.random.SeedSequence):
     if isinstance(seed, np.random.SeedSequence):
         return seed.spawn(2)
     return [np.random.SeedSequence(seed, spawn_key=(i,)) for i in range(2)]
+
+
+def _generator(ss: np.random.SeedSequence) -> np.random.Generator:
+    """``np.random.default_rng(ss)``, which is this (a PCG64 generator), without its checks."""
+    return np.random.Generator(np.random.PCG64(ss))
 
 
 _LOCAL = threading.local()
@@ -173,7 +141,8 @@ class Prepared:
     (``wmr.metrics``); ``status = (step, cause)`` once the run stopped (``(-1, 0)`` before);
     ``plant_kind`` one of ``PLANT_IDEAL, PLANT_TABLE, PLANT_PYTHON`` and ``pyplant`` the
     Python-level robot (``wmr.pyplant.PyPlant``) of the last kind; ``reference`` the scenario's
-    shared reference table (None for a run longer than :data:`TABLE_ROWS`).  ``Qp``, ``Rp``,
+    shared reference table (None for a run longer than :data:`TABLE_ROWS`); ``quiet`` whether
+    the noise cannot overflow (no warnings to silence).  ``Qp``, ``Rp``,
     ``std``, ``disturbance``, ``plant_table``, ``plant_at`` and ``reference`` are shared by the
     scenario's runs (:data:`SHARED`): read only.
     """
@@ -206,6 +175,7 @@ class Prepared:
     plant_kind: int = 0
     pyplant: Any = None
     reference: np.ndarray | None = None
+    quiet: bool = False
 
     @property
     def dt(self) -> float:
@@ -237,12 +207,16 @@ class Prepared:
             else:
                 ref = np.vstack((prev[-1:], sampler.rows(k0 + 1, k1 + 1)))
                 prev = ref
-            with np.errstate(over="ignore", invalid="ignore"):  # extreme scenarios diverge
-                if reuse:
-                    noise = _noise_buffer(k1 - k0)
-                    self.rng_noise.standard_normal(out=noise)
+            if reuse:
+                noise = _noise_buffer(k1 - k0)
+                self.rng_noise.standard_normal(out=noise)
+                if self.quiet:
                     np.multiply(noise, self.std, out=noise)
                 else:
+                    with np.errstate(over="ignore", invalid="ignore"):  # extreme scenarios
+                        np.multiply(noise, self.std, out=noise)  # diverge, not warn
+            else:
+                with np.errstate(over="ignore", invalid="ignore"):
                     noise = self.rng_noise.standard_normal((k1 - k0, 3)) * self.std
             yield k0, k1, ref, noise
 
@@ -275,8 +249,14 @@ def prepare(scenario: Scenario, controller: str, seed: int | None = None, settin
     ctrl = controllers.get(controller)
     settings = settings if settings is not None else _settings(scenario, controller)
     seed = scenario.seed if seed is None else seed
-    noise_ss, init_ss = seed_sequences(seed)
-    p, s, theta, P = ctrl.pack(settings, scenario, np.random.default_rng(init_ss))
+    # a pack that says it draws nothing (``pack.uses_rng = False``) is handed no generator (its
+    # stream is not even made: the noise stream is the first child either way)
+    draws = getattr(ctrl.pack, "uses_rng", True)
+    if draws or isinstance(seed, np.random.SeedSequence):
+        noise_ss, init_ss = seed_sequences(seed)
+    else:
+        noise_ss, init_ss = np.random.SeedSequence(seed, spawn_key=(0,)), None
+    p, s, theta, P = ctrl.pack(settings, scenario, _generator(init_ss) if draws else None)
     fx = _fixed(scenario)
     table, at, ints, vel, buffer = fx.plant
     make = robot if robot is not None else pyplant.factory(scenario.plant)
@@ -295,6 +275,6 @@ def prepare(scenario: Scenario, controller: str, seed: int | None = None, settin
         disturbance=fx.disturbance, integrator=fx.integrator,
         plant_table=table, plant_at=at, plant_ints=ints.copy(), plant_vel=vel.copy(),
         plant_buffer=buffer.copy(), acc=np.zeros(metrics.N_ACC),
-        status=np.array([-1, 0], dtype=np.int64), rng_noise=np.random.default_rng(noise_ss),
-        plant_kind=kind, pyplant=robot, reference=reference_table(scenario),
+        status=np.array([-1, 0], dtype=np.int64), rng_noise=_generator(noise_ss),
+        plant_kind=kind, pyplant=robot, reference=reference_table(scenario), quiet=fx.quiet,
     )  # fmt: skip

@@ -60,6 +60,7 @@ import numpy as np
 
 from wmr import nn
 from wmr._jit import njit
+from wmr._shared import SHARED
 from wmr._settings import check, positive
 from wmr.controllers import backstepping
 from wmr.ekf import repair_covariance, weight_update
@@ -123,12 +124,18 @@ def pack(settings: Settings, scenario, rng):
     """``(p, s, theta, P)``: output layer of the compensator initialised to zero."""
     n = nn.n_weights(N_IN, settings.hidden, N_OUT)
     theta = nn.init_weights(rng, N_IN, settings.hidden, N_OUT, output_scale=0.0)
-    p = Params(np.array(settings.gains), settings.printed_rotation,
-               INTEGRATORS[scenario.integrator], settings.hidden, np.full(n, settings.q),
-               settings.r * np.eye(3), np.zeros((N_OUT, n)), np.zeros((3, n)),
+
+    def build():  # what the runs share (read only): gains, the filter's Q and R, P0
+        return (np.array(settings.gains), np.full(n, settings.q), settings.r * np.eye(3),
+                settings.p0 * np.eye(n))  # fmt: skip
+
+    gains, q_diag, R, P0 = SHARED.get("adaptive-nn", (settings, scenario.limits),
+                                      scenario.integrator, build)  # fmt: skip
+    p = Params(gains, settings.printed_rotation, INTEGRATORS[scenario.integrator],
+               settings.hidden, q_diag, R, np.zeros((N_OUT, n)), np.zeros((3, n)),
                np.zeros((3, 3, n)), scenario.limits.v_max, scenario.limits.w_max,
                np.zeros(_HID + settings.hidden))  # fmt: skip
-    return p, np.zeros(_S_SIZE), theta, settings.p0 * np.eye(n)
+    return p, np.zeros(_S_SIZE), theta, P0.copy()
 
 
 @dataclass(frozen=True)

@@ -55,6 +55,9 @@ def pack(settings: Settings, scenario, rng: np.random.Generator):
     return p, np.zeros(0), np.zeros(0), np.zeros((0, 0))
 
 
+pack.uses_rng = False  # it draws nothing: the loop need not make the initialisation stream
+
+
 @dataclass(frozen=True)
 class State:
     """Backstepping has no controller state: the law is static."""

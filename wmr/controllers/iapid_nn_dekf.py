@@ -81,18 +81,23 @@ def pack(settings: Settings, scenario, rng, oracle: bool = False):
     """``(p, s, theta, P)``: PID parameters, network weights ``theta`` (n,) and covariance
     ``P0``.  ``oracle``: the identifier learns from the true poses (``p.truth``, written by the
     loop) instead of the estimates; the PID still acts on the estimate."""
-    n = nn.n_weights(N_IN, settings.hidden, N_OUT)
     source = pid.JacobianSource.NETWORK if settings.adapt else pid.JacobianSource.NONE
-    base = pid.make_params(settings, source, scenario, n_h=settings.hidden,
-                            printed_jacobian=settings.printed_jacobian,
-                            q_diag=np.full(n, settings.q),
-                            R=settings.r * np.eye(N_OUT),
-                            scratch=_scratch_size(settings.hidden))  # fmt: skip
-    p = Params(*base, H=np.zeros((N_OUT, n)), work=np.zeros((3, N_OUT, n)), oracle=bool(oracle),
+
+    def build():  # what the runs share (read only): the parameters' arrays and P0
+        n = nn.n_weights(N_IN, settings.hidden, N_OUT)
+        base = pid.make_params(settings, source, scenario, n_h=settings.hidden,
+                                printed_jacobian=settings.printed_jacobian,
+                                q_diag=np.full(n, settings.q),
+                                R=settings.r * np.eye(N_OUT),
+                                scratch=_scratch_size(settings.hidden))  # fmt: skip
+        return base, n, settings.p0 * np.eye(n)
+
+    base, n, P0 = pid.shared("iapid", settings, scenario, source, build)
+    p = Params(*base[:-1], np.zeros(base.scratch.size), H=np.zeros((N_OUT, n)),
+               work=np.zeros((3, N_OUT, n)), oracle=bool(oracle),
                truth=np.zeros(6))  # (true pose at t_k, true pose at t_{k-1})
     theta = nn.init_weights(rng, N_IN, settings.hidden, N_OUT, settings.output_scale)
-    P = settings.p0 * np.eye(n)
-    return p, pid.initial_state(settings), theta, P
+    return p, pid.initial_state(settings), theta, P0.copy()
 
 
 def pack_oracle(settings: Settings, scenario, rng):

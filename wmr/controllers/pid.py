@@ -36,6 +36,7 @@ from enum import IntEnum
 import numpy as np
 
 from wmr._jit import njit
+from wmr._shared import SHARED
 from wmr._settings import check
 from wmr.kinematics import INTEGRATORS, step_jacobians_into, tracking_error_parts
 
@@ -209,12 +210,24 @@ class FixedSettings(Settings):
     adapt: bool = False
 
 
+def shared(kind: str, settings, scenario, source, build):
+    """``build()`` made once per ``kind`` of pack, settings, Jacobian ``source`` and the scenario's
+    limits and integrator (what :func:`make_params` reads), and shared by the runs
+    (``wmr._shared``): the laws only read the arrays of the parameters; each run gets its own
+    ``scratch`` and whatever else a law writes."""
+    return SHARED.get(kind, (settings, scenario.limits), (int(source), scenario.integrator), build)
+
+
 def pack(settings: Settings, scenario, rng):
     """``(p, s, theta, P)`` for ``pid``/``adaptive-pid``: no network, so ``theta`` and ``P`` are
     empty."""
     source = JacobianSource.MODEL if settings.adapt else JacobianSource.NONE
-    p = make_params(settings, source, scenario)
+    p = shared("pid", settings, scenario, source, lambda: make_params(settings, source, scenario))
+    p = Params(*p[:-1], np.zeros(SCRATCH))  # the run's own scratch (the last field)
     return p, initial_state(settings), np.zeros(0), np.zeros((0, 0))
+
+
+pack.uses_rng = False  # it draws nothing: the loop need not make the initialisation stream
 
 
 @dataclass(frozen=True)
