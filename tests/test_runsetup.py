@@ -57,3 +57,43 @@ def test_a_scenario_copy_shares_its_unchanged_parts():
     other = dataclasses.replace(sc, reference=scn.ReferenceSpec("circle", {"radius": 1.0,
                                                                            "period": 20.0}))
     assert not np.array_equal(runsetup.reference_table(other), runsetup.reference_table(sc))
+
+
+class _Wrapped:
+    """A Python-level controller: backstepping's law; with ``nested`` it also simulates a short
+    run of its own at every step (as a controller with a model rollout inside would)."""
+
+    nested = False
+
+    def __init__(self, settings, scenario, rng):
+        from wmr.controllers import backstepping
+
+        self.law = backstepping.law
+        self.p, self.s, self.theta, self.P = backstepping.pack(settings, scenario, rng)
+        self.short = dataclasses.replace(scenario, duration=10 * scenario.dt)
+        self.u = np.zeros(2)
+
+    def step(self, q_hat, ref, dt):
+        if self.nested:
+            simulate(self.short, "backstepping", 9, keep_trajectory=False)
+        self.law(self.p, self.s, self.theta, self.P, q_hat, ref, dt, self.u)
+        return self.u[0], self.u[1]
+
+
+class _Nested(_Wrapped):
+    nested = True
+
+
+def test_a_run_inside_a_python_controller_leaves_the_outer_run_alone(monkeypatch):
+    """The thread's noise buffer serves the compiled kernel only: a run started from inside a
+    Python-level controller's step (the Python driver) must not overwrite the outer run's noise."""
+    from wmr.controllers import PyController, backstepping
+
+    sc = dataclasses.replace(scn.load(scn.builtin("lemniscate")), duration=0.5)
+    for name, cls in (("bsc-py", _Wrapped), ("bsc-py-nested", _Nested)):
+        monkeypatch.setitem(controllers.REGISTRY, name,
+                            PyController(name, cls, backstepping.Settings))  # fmt: skip
+    plain = simulate(sc, "bsc-py", 4)
+    nested = simulate(sc, "bsc-py-nested", 4)
+    assert_array_equal(nested.q, plain.q)
+    assert_array_equal(plain.q, simulate(sc, "backstepping", 4).q)

@@ -454,7 +454,9 @@ def run(run: Prepared, logs: Logs | None, probe=None, driver: str | None = None)
     _start(run, logs)
     if logs is None:
         logs = _NO_LOGS
-    for k0, k1, ref, noise in run.chunks(reuse=True):
+    # the thread's noise buffer only for the kernel: Python code run by the Python driver (a
+    # controller that simulates inside its step) could start another run on this thread
+    for k0, k1, ref, noise in run.chunks(reuse=driver == "compiled"):
         advance(
             run.p, run.s, run.theta, run.P, k0, k1, sc.dt, run.integrator, run.q, run.q_hat,
             ref, noise, run.use_ekf, run.Pq, run.Qp, run.Rp, run.disturbance,

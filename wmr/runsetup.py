@@ -44,9 +44,9 @@ __all__ = [
 
 #: Steps simulated per kernel call (noise is drawn per chunk).
 CHUNK = 8192
-#: The longest reference table kept for a scenario (rows; 10.5 MB): a longer run samples its
-#: reference chunk by chunk instead.
-TABLE_ROWS = 1 << 18
+#: The longest reference table kept for a scenario (rows: one chunk's, 328 kB): a longer run
+#: samples its reference chunk by chunk instead, so its memory does not grow with its length.
+TABLE_ROWS = CHUNK + 1
 #: What drives the true robot (a compile-time constant of each copy of the loop's step): the
 #: ideal plant (``wmr.kinematics.step`` with the scenario's integrator), the parameter table of
 #: ``wmr.plant`` (gains, coupling, lag, slip, lagged velocity loop, changes), or a Python-level
@@ -191,8 +191,9 @@ class Prepared:
 
         ``ref`` holds the reference rows ``k0 .. k1`` (one more than the steps: the last row is
         where the step's pose is scored), ``noise`` the measurement noise of steps ``k0 .. k1-1``.
-        Fresh arrays by default; with ``reuse`` (the loop's own use) ``ref`` is a view of the
-        shared table and ``noise`` the thread's buffer, overwritten by the next chunk.
+        Fresh arrays by default; with ``reuse`` (the compiled kernel's use: no other run can
+        start on this thread before it has read the chunk) ``ref`` is a view of the shared
+        table and ``noise`` the thread's buffer, overwritten by the next chunk.
         """
         sc = self.scenario
         n = sc.n_steps
