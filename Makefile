@@ -25,8 +25,9 @@ $(STAMP): pyproject.toml $(LOCK)
 reproduce: $(STAMP)
 	$(BIN)/wmr reproduce --out paper
 
+# The notebooks' kernels import the studies (analysis/) from the checkout: PYTHONPATH says where.
 test: $(STAMP)
-	$(BIN)/python -m pytest --nbval --nbval-sanitize-with notebooks/sanitize.cfg
+	PYTHONPATH=$(CURDIR) $(BIN)/python -m pytest --nbval --nbval-sanitize-with notebooks/sanitize.cfg
 
 bench: $(STAMP)
 	$(BIN)/wmr bench --out paper

@@ -1,20 +1,22 @@
-"""Evaluation of calibration points through the execution engine, cached in a resumable store.
+"""Evaluation of calibration points on the run engine, cached in its shard store.
 
 A :class:`Task` is a list of runs (``Scenario``, controller, settings) over a list of seeds,
-named by a deterministic ``key`` (a hash of what defines it).  :class:`Evaluator` runs the tasks
-it has not seen before on ``wmr.study.engine`` (serial, or Dask: batches of a few seconds, explicit
-task keys, retries, a bounded window) and keeps every result in a store:
+named by a deterministic ``key`` (a hash of what defines it); its result is an array of shape
+``(seeds, cases, len(METRICS) + 1)`` (:func:`task_array`).  :class:`Evaluator` runs the tasks it
+has not seen before as jobs of the one engine (``wmr.engine``: one ``Job`` per run, the engine's
+batches, retries and store) and keeps every run's row in a ``wmr.engine.store.ShardStore``:
 
-- ``manifest.json``: the store's digest (wmr's sources and the calibration's own code) and
-  counts;
-- ``rows/part-*.parquet``: immutable shards, one row per (task, seed, run): ``key``, ``seed``,
-  ``i_seed``, ``case``, ``scenario``, ``controller``, the metrics of :data:`METRICS` and
-  ``status`` (0 ok, 1 diverged, 2 error), written atomically at least every ``flush_seconds``.
+- ``manifest.json``: the store's digest (:func:`store_digest`: wmr's sources, the calibration's
+  own code, the shipped scenario files it reads) and counts;
+- ``rows/part-*.parquet``: immutable shards, one row per (task, seed, run), the engine's row
+  (``wmr.engine.jobs.job_row``) with ``job_id = "<key>/<seed index>/<case>"`` and the labels
+  ``key``, ``i_seed``, ``case``.
 
-Every stage of the study (screening, design, Sobol matrices, the fit's generations, the fair
-tuning) goes through :meth:`Evaluator.evaluate`, so an interrupted study resumes where it
-stopped: a rerun finds its finished tasks in the store (the fit's optimiser is seeded, so it asks
-for the same points again and replays them from the store).
+A store of another digest is stale: it is set aside (renamed ``<folder>.stale-<time>``, one
+line on stderr) and rebuilt.  Every stage of the study (screening, design, Sobol matrices, the
+fit's generations, the fair tuning) goes through :meth:`Evaluator.evaluate`, so an interrupted
+study resumes where it stopped: a rerun finds its finished tasks in the store (the fit's
+optimiser is seeded, so it asks for the same points again and replays them from the store).
 """
 
 from __future__ import annotations
@@ -22,7 +24,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -30,13 +31,15 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["METRICS", "Task", "task_key", "run_task", "Evaluator", "store_digest", "read_store"]
+__all__ = ["METRICS", "COLUMNS", "Task", "task_key", "task_jobs", "task_array", "run_task",
+           "Evaluator", "store_digest", "read_store", "KIND"]  # fmt: skip
 
 #: Metrics of a run, in the order of a result's last axis (then ``status``).
 METRICS = ("x", "y", "theta", "position", "tail_position", "effort")
+#: The engine's row column of each metric.
+COLUMNS = ("rmse_x", "rmse_y", "rmse_theta", "rmse_position", "tail_position", "effort")
 OK, DIVERGED, ERROR = 0, 1, 2
-#: Tasks per batch sent to a worker (a task is 12 runs x seeds: ~0.2-0.5 s).
-TASKS_PER_BATCH = 6
+KIND = "wmr calibration store"
 
 
 def task_key(spec) -> str:
@@ -54,70 +57,110 @@ class Task:
     seeds: tuple[int, ...]
 
 
-def run_task(task: Task) -> tuple[str, np.ndarray]:
-    """Run a task here: ``(key, array)``, the array of shape ``(len(seeds), len(cases),
-    len(METRICS) + 1)`` holding the metrics and the status; a diverged run or one that raised
-    has NaN metrics (effort too) and status 1 or 2."""
-    from wmr.sim import simulate
+def task_jobs(task: Task, which: np.ndarray | None = None) -> list:
+    """The task's runs as engine jobs, seed-major, ``job_id = "<key>/<i_seed>/<case>"``; only
+    those where the (seeds, cases) mask ``which`` is true, if given."""
+    from wmr.engine.jobs import Job
 
+    return [Job(sc, c, int(seed), settings=st, job_id=f"{task.key}/{i}/{j}",
+                labels=(("key", task.key), ("i_seed", i), ("case", j)))
+            for i, seed in enumerate(task.seeds)
+            for j, (sc, c, st) in enumerate(task.cases)
+            if which is None or which[i, j]]  # fmt: skip
+
+
+def task_array(task: Task, rows: Sequence[dict]) -> np.ndarray:
+    """The result of ``task`` from its runs' rows (any order): shape ``(len(seeds),
+    len(cases), len(METRICS) + 1)``, the metrics then the status; a diverged run or one that
+    raised has NaN metrics (effort too) and status 1 or 2."""
     out = np.full((len(task.seeds), len(task.cases), len(METRICS) + 1), np.nan)
-    for j, (sc, controller, settings) in enumerate(task.cases):
-        for i, seed in enumerate(task.seeds):
-            try:
-                r = simulate(sc, controller, seed, settings=settings, keep_trajectory=False)
-            except Exception:  # noqa: BLE001 - a run that raises is a result (status 2)
-                out[i, j, -1] = ERROR
-                continue
-            if r.diverged:
-                out[i, j, -1] = DIVERGED
-                continue
-            m, t = r.rmse, r.rmse_after_transient
-            out[i, j, :-1] = (m["x"], m["y"], m["theta"], m["position"], t["position"],
-                              r.effort)  # fmt: skip
+    for r in rows:
+        i, j = r["i_seed"], r["case"]
+        if r["status"] == "error":
+            out[i, j, -1] = ERROR
+        elif r["diverged"]:
+            out[i, j, -1] = DIVERGED
+        else:
+            out[i, j, :-1] = [r[c] for c in COLUMNS]
             out[i, j, -1] = OK
-    return task.key, out
+    return out
+
+
+def run_task(task: Task) -> tuple[str, np.ndarray]:
+    """Run a task here: ``(key, array)`` (:func:`task_array` of the engine's rows)."""
+    from wmr.engine.jobs import job_row
+
+    return task.key, task_array(task, [job_row(j) for j in task_jobs(task)])
+
+
+def _schema():
+    import pyarrow as pa
+
+    from wmr.engine.jobs import COLUMN_TYPES
+    from wmr.engine.jobs import COLUMNS as RESULT
+
+    cols = [("job_id", pa.string()), ("key", pa.string()), ("seed", pa.int64()),
+            ("i_seed", pa.int64()), ("case", pa.int64()), ("scenario", pa.string()),
+            ("controller", pa.string())]  # fmt: skip
+    return pa.schema(cols + [(c, getattr(pa, COLUMN_TYPES[c])()) for c in RESULT])
 
 
 def store_digest(extra: str = "") -> str:
     """What the runs of a task depend on: wmr's sources, the prior (settings to scenarios,
     ``_calibration_prior.py``), the fair tuning's trajectories and gain ranges
-    (``_calibration_fair.py``), :func:`run_task` and :data:`METRICS`; and ``extra``.  The
-    stages that only summarise runs are not in it: changing them reuses the store."""
+    (``_calibration_fair.py``), the shipped scenario files the prior and the held-out runs read
+    (``wmr/scenarios/<paper scenario>.toml``), :func:`task_jobs` and :func:`task_array` (a task's
+    runs and its result from their rows), :data:`METRICS`; and ``extra``.  The stages that only
+    summarise runs are not in it: changing them reuses the store."""
     import inspect
 
+    from analysis import _calibration_prior as prior
+    from wmr import scenario as scn
     from wmr._jit import source_digest
+    from wmr.engine.store import digest_files
 
-    h = hashlib.sha256(source_digest().encode())
     here = Path(__file__).resolve().parent
-    for name in ("_calibration_prior.py", "_calibration_fair.py"):
-        h.update((here / name).read_bytes())
-    h.update(inspect.getsource(run_task).encode())
-    h.update(repr(METRICS).encode())
-    h.update(extra.encode())
-    return h.hexdigest()[:16]
+    files = [here / "_calibration_prior.py", here / "_calibration_fair.py"]
+    files += [scn.builtin(name) for name in prior.SCENARIOS]
+    code = "".join(inspect.getsource(f) for f in (task_jobs, task_array))
+    return digest_files(files, "\0".join((source_digest(), code, repr((METRICS, COLUMNS)), extra)))
+
+
+def _arrays(table, tasks: dict[str, Task] | None = None) -> dict[str, np.ndarray]:
+    """Task key -> result array from a table of rows (a task's shape from its rows when it is
+    not in ``tasks``)."""
+    if table is None:
+        return {}
+    t = table.to_pydict()
+    rows = [dict(zip(t, values, strict=True)) for values in zip(*t.values(), strict=True)]
+    groups: dict[str, list[dict]] = {}
+    for r in rows:
+        groups.setdefault(r["key"], []).append(r)
+    out = {}
+    for k, rs in groups.items():
+        task = (tasks or {}).get(k)
+        if task is None:
+            seeds = {r["i_seed"]: r["seed"] for r in rs}
+            n_c = max(r["case"] for r in rs) + 1
+            task = Task(k, (None,) * n_c, tuple(seeds[i] for i in range(max(seeds) + 1)))
+        out[k] = task_array(task, rs)
+    return out
 
 
 def read_store(folder: str | Path) -> dict[str, np.ndarray]:
     """Every finished task of the store ``folder``: key -> array (as :func:`run_task`)."""
-    import pyarrow.parquet as pq
+    from wmr.engine.store import ShardStore
 
-    shards = sorted((Path(folder) / "rows").glob("part-*.parquet"))
-    out: dict[str, np.ndarray] = {}
-    for path in shards:
-        t = pq.read_table(path).to_pydict()
-        keys, i_seed, case = t["key"], t["i_seed"], t["case"]
-        cols = np.column_stack([np.asarray(t[m], dtype=float) for m in (*METRICS, "status")])
-        groups: dict[str, list[int]] = {}
-        for row, k in enumerate(keys):
-            groups.setdefault(k, []).append(row)
-        for k, rows in groups.items():
-            n_s = max(i_seed[r] for r in rows) + 1
-            n_c = max(case[r] for r in rows) + 1
-            arr = np.full((n_s, n_c, len(METRICS) + 1), np.nan)
-            for r in rows:
-                arr[i_seed[r], case[r]] = cols[r]
-            out[k] = arr
-    return out
+    return _arrays(ShardStore(folder).read())
+
+
+def _missing(task: Task, stored: np.ndarray | None) -> np.ndarray:
+    """Which runs of ``task`` (seed x case, bool) the ``stored`` array (None: none) lacks."""
+    miss = np.ones((len(task.seeds), len(task.cases)), dtype=bool)
+    if stored is not None:
+        a, b = min(stored.shape[0], miss.shape[0]), min(stored.shape[1], miss.shape[1])
+        miss[:a, :b] = np.isnan(stored[:a, :b, -1])
+    return miss
 
 
 class Evaluator:
@@ -126,58 +169,44 @@ class Evaluator:
     Parameters
     ----------
     folder : path
-        The store (created if absent; a store of another digest is refused).
+        The store (created if absent; a store of another digest is set aside and rebuilt).
     digest : str
         The store's digest (:func:`store_digest`).
     workers, scheduler
-        The engine (``wmr.study.engine``): 1 = serial here; None = the usable cores.
+        The engine (``wmr.engine.executors.engine``): 1 = serial here; None = the usable cores.
     flush_seconds : float [s]
         Finished rows are written as a shard at least this often.
     progress : bool or None
-        ``wmr.study.Progress`` (None: a bar on a terminal, lines otherwise).
+        ``wmr.engine.progress.Progress`` (None: a bar on a terminal, lines otherwise).
     """
 
     def __init__(self, folder: str | Path, digest: str, workers: int | None = None,
                  scheduler: str | None = None, flush_seconds: float = 30.0,
                  progress: bool | None = None):  # fmt: skip
+        from wmr.engine.store import ShardStore
+
         self.folder, self.digest = Path(folder), digest
         self.workers, self.scheduler = workers, scheduler
         self.flush_seconds, self.progress = flush_seconds, progress
-        self.manifest = self.folder / "manifest.json"
-        old = json.loads(self.manifest.read_text()) if self.manifest.exists() else {}
-        if old and old.get("digest") != digest:
-            raise ValueError(f"{self.folder} holds a calibration store of another version "
-                             f"({old.get('digest')} != {digest}): give another folder")  # fmt: skip
-        (self.folder / "rows").mkdir(parents=True, exist_ok=True)
+        self.store = ShardStore.open(self.folder, _schema(), {"digest": digest}, kind=KIND)
+        old = self.store.manifest
         #: every invocation's runs and seconds of running, summed (the study's whole cost)
         self.totals = {"runs": int(old.get("runs_total", 0)),
                        "seconds_running": float(old.get("seconds_running_total", 0.0))}
         self._write_manifest()
-        self.cache = read_store(self.folder)
+        self.cache = _arrays(self.store.read())
         self.loaded = len(self.cache)
         self.runs_this_time, self.seconds, self.engine_name = 0, 0.0, "none (all from the store)"
-        self._engine, self._warm = None, set()
+        self._engine = None
 
     # -- the engine, started on first need ------------------------------------------------------
     def _eng(self):
-        from wmr import study
+        from wmr.engine.executors import engine
 
         if self._engine is None:
-            self._engine = study.engine(self.workers, self.scheduler)
+            self._engine = engine(self.workers, self.scheduler)
             self.engine_name = self._engine.name
         return self._engine
-
-    def _warm_up(self, tasks: Sequence[Task]) -> None:
-        from wmr import study
-
-        pairs = {}
-        for t in tasks:
-            for sc, c, _ in t.cases:
-                if (c, sc.plant.ideal) not in self._warm:
-                    pairs[(c, sc.plant.ideal)] = (sc, c)
-        if pairs:
-            self._eng().run_everywhere(study.warm_up, list(pairs.values()))
-            self._warm |= set(pairs)
 
     def close(self) -> None:
         if self._engine is not None:
@@ -192,73 +221,43 @@ class Evaluator:
 
     # -- evaluation -----------------------------------------------------------------------------
     def evaluate(self, tasks: Sequence[Task], desc: str = "calibration") -> list[np.ndarray]:
-        """The result of each task (:func:`run_task`), running only those not in the store."""
-        from wmr.study import Progress
+        """The result of each task (:func:`run_task`), running only the runs not in the store
+        (a task cut by an interruption runs its missing runs only)."""
+        from wmr.engine.driver import execute
+        from wmr.engine.jobs import job_row
 
-        todo = list({t.key: t for t in tasks if t.key not in self.cache}.values())
+        todo = {t.key: t for t in tasks if _missing(t, self.cache.get(t.key)).any()}
         if todo:
             t0 = time.perf_counter()
-            self._warm_up(todo)
-            eng = self._eng()
-            batches = [todo[i:i + TASKS_PER_BATCH] for i in range(0, len(todo), TASKS_PER_BATCH)]
-            keys = [f"wmr-calibration-{b[0].key}-{len(b)}" for b in batches]
-            n_runs = sum(len(t.cases) * len(t.seeds) for t in todo)
-            bar = Progress(n_runs, desc, self.progress)
-            buffer: list[tuple[Task, np.ndarray]] = []
-            last = time.perf_counter()
-            by_key = {t.key: t for t in todo}
+            jobs = [j for t in todo.values()
+                    for j in task_jobs(t, _missing(t, self.cache.get(t.key)))]  # fmt: skip
             try:
-                for _, results in eng.map_batches(run_task, batches, keys):
-                    for key, arr in results:
-                        self.cache[key] = arr
-                        buffer.append((by_key[key], arr))
-                        bar.update(arr.shape[0] * arr.shape[1])
-                    if time.perf_counter() - last >= self.flush_seconds:
-                        self._write(buffer)
-                        buffer, last = [], time.perf_counter()
+                rows = execute(jobs, self._eng(), job_row, store=self.store, keep=True,
+                               flush_seconds=self.flush_seconds, progress=self.progress,
+                               desc=desc)  # fmt: skip
             finally:
-                self._write(buffer)  # what is finished is kept, even on an interrupt
-                bar.close()
-            self.runs_this_time += n_runs
-            self.seconds += time.perf_counter() - t0
-            self.totals["runs"] += n_runs
-            self.totals["seconds_running"] += time.perf_counter() - t0
+                self.seconds += time.perf_counter() - t0
+                self.totals["seconds_running"] += time.perf_counter() - t0
+            by_key: dict[str, list[dict]] = {}
+            for r in rows:
+                by_key.setdefault(r["key"], []).append(r)
+            for k, t in todo.items():
+                arr = task_array(t, by_key.get(k, []))
+                old = self.cache.get(k)
+                if old is not None:  # the runs stored before
+                    a, b = min(old.shape[0], arr.shape[0]), min(old.shape[1], arr.shape[1])
+                    kept = ~np.isnan(old[:a, :b, -1])
+                    arr[:a, :b][kept] = old[:a, :b][kept]
+                self.cache[k] = arr
+            self.runs_this_time += len(jobs)
+            self.totals["runs"] += len(jobs)
             self._write_manifest()
         return [self.cache[t.key] for t in tasks]
 
     def _write_manifest(self) -> None:
-        from wmr.io import write_json
-
-        write_json(self.manifest, {"digest": self.digest, "kind": "wmr calibration store",
+        self.store.write_manifest({"digest": self.digest, "kind": KIND,
                                    "runs_total": self.totals["runs"],
                                    "seconds_running_total": self.totals["seconds_running"]})
-
-    def _write(self, done: list[tuple[Task, np.ndarray]]) -> None:
-        import pyarrow as pa
-        import pyarrow.parquet as pq
-
-        if not done:
-            return
-        cols: dict[str, list] = {k: [] for k in ("key", "seed", "i_seed", "case", "scenario",
-                                                  "controller", *METRICS, "status")}  # fmt: skip
-        for task, arr in done:
-            for i, seed in enumerate(task.seeds):
-                for j, (sc, c, _) in enumerate(task.cases):
-                    cols["key"].append(task.key)
-                    cols["seed"].append(int(seed))
-                    cols["i_seed"].append(i)
-                    cols["case"].append(j)
-                    cols["scenario"].append(sc.name)
-                    cols["controller"].append(c)
-                    for m, x in zip((*METRICS, "status"), arr[i, j], strict=True):
-                        cols[m].append(int(x) if m == "status" else float(x))
-        table = pa.table(cols)
-        name = f"part-{time.time_ns():020d}-{os.getpid()}.parquet"
-        tmp = self.folder / "rows" / f".{name}.tmp"
-        pq.write_table(table, tmp)
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, self.folder / "rows" / name)
 
     def runs_in_store(self) -> int:
         """Runs held by the store (tasks x seeds x cases)."""

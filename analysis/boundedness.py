@@ -63,11 +63,9 @@ loaded machine; ``--quick`` instruments every 20th step with 8 seeds).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
-import multiprocessing as mp
-import os
 import sys
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -77,10 +75,10 @@ from analysis._boundedness_views import figure, notes, summary, table
 from wmr import loop
 from wmr import scenario as scn
 from wmr import stability as stab
+from wmr.engine.jobs import Job
 from wmr.probes import PoseProbe, WeightProbe, identical_runs, target_noise
 from wmr.scenario import Scenario
 from wmr.sim import simulate
-from wmr.study import default_workers
 
 __all__ = [
     "STEM",
@@ -122,8 +120,6 @@ EXACT_MODEL_RTOL = 0.05
 #: cancellation-free one (absolute, on 1 - lambda): below Lemma 2's alpha (~1e-12), so the
 #: direct computation could not flip the verdict on (48); ~3e-15 is observed.
 DIRECT_ATOL = 1e-13
-#: Single-threaded BLAS in the worker processes (see :func:`_run_all`).
-_BLAS_THREAD_VARS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 # --- The weight filter along one run ----------------------------------------------------------
@@ -444,28 +440,29 @@ def pose_consistency(sc: Scenario, runs: list[dict]) -> tuple[dict, dict]:
 # --- Execution, record, check -----------------------------------------------------------------
 
 
-def _job(kind: str, sc: Scenario, seed: int, every: int):
-    return analyse_weight_filter(sc, seed, every) if kind == "weights" else pose_run(sc, seed)
+def _job(job: Job, every: int):
+    """One task of the study: the weight filter along the run (``variant = "weights"``) or the
+    pose filter's statistics of one Monte-Carlo run (``"pose"``)."""
+    if job.variant == "weights":
+        return analyse_weight_filter(job.scenario, job.seed, every)
+    return pose_run(job.scenario, job.seed, job.controller)
 
 
-def _run_all(tasks: list[tuple], workers: int) -> list:
-    """Run the tasks in ``workers`` fresh (spawned) processes with single-threaded BLAS.
+def _run_all(jobs: list[Job], every: int, workers: int | None) -> list:
+    """The study's jobs on the run engine, one per batch (each is a probed run of seconds), in
+    ``workers`` worker processes (default: the usable cores) even for one; results in job order.
 
-    The O(n^3) steps are on 83 x 83 matrices, which BLAS threads do not speed up; several
-    processes each spinning a BLAS thread pool on 2 cores made them ~30x slower.  The variables
-    are set only for the children (spawned after they are set) and restored afterwards.
-    """
-    saved = {k: os.environ.get(k) for k in _BLAS_THREAD_VARS}
-    os.environ.update(dict.fromkeys(_BLAS_THREAD_VARS, "1"))
-    try:
-        with ProcessPoolExecutor(max(1, workers), mp_context=mp.get_context("spawn")) as ex:
-            return list(ex.map(_job, *zip(*tasks, strict=True)))
-    finally:
-        for k, v in saved.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+    The worker processes have single-threaded BLAS (``wmr.engine.executors.WORKER_ENV``), this
+    process perhaps not: the O(n^3) steps are on 83 x 83 matrices, whose last bits depend on
+    the BLAS threads (so the record would depend on ``workers`` if one worker meant this
+    process), and several processes each spinning a BLAS thread pool on 2 cores made them ~30x
+    slower."""
+    from wmr.engine.driver import execute
+    from wmr.engine.executors import DaskEngine
+
+    with DaskEngine(workers=workers) as eng:
+        return execute(jobs, eng, functools.partial(_job, every=every), progress=False,
+                       batch_seconds=0.0)  # fmt: skip
 
 
 def run(out: str | Path, *, quick: bool = False, workers: int | None = None,
@@ -491,9 +488,10 @@ def run(out: str | Path, *, quick: bool = False, workers: int | None = None,
     scenarios = {name: scn.load(scn.builtin(name)) for name in scn.PAPER_SCENARIOS}
     every = QUICK_EVERY if quick else 1
     seeds = min(seeds, QUICK_SEEDS) if quick else seeds
-    tasks = [("weights", sc, sc.seed, every) for sc in scenarios.values()]
-    tasks += [("pose", sc, s, every) for sc in scenarios.values() for s in range(seeds)]
-    done = _run_all(tasks, default_workers() if workers is None else workers)
+    jobs = [Job(sc, CONTROLLER, sc.seed, variant="weights") for sc in scenarios.values()]
+    jobs += [Job(sc, CONTROLLER, s, variant="pose") for sc in scenarios.values()
+             for s in range(seeds)]  # fmt: skip
+    done = _run_all(jobs, every, workers)
     record, views = {}, {}
     for i, (name, sc) in enumerate(scenarios.items()):
         w_sum, w_series = done[i]

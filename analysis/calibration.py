@@ -24,8 +24,8 @@ Nothing is tuned to make a controller win; the fit is a separate, labelled resul
 Commands: ``wmr analyze calibration`` (and ``wmr reproduce``) re-render the committed record
 (``paper/results/calibration.json`` and its points file); without one they compute it.
 ``python -m analysis.calibration --full [--workers N]`` recomputes it: about 45 minutes
-of runs on two cores, in a resumable store under ``$WMR_STORES`` (default
-``~/.cache/wmr/stores``) named by the sources.
+of runs on two cores, in a resumable store ``calibration/`` under ``$WMR_STORES`` (default
+``~/.cache/wmr/stores``; a store of other sources is set aside and rebuilt).
 """
 
 from __future__ import annotations
@@ -33,7 +33,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
 import time
 from pathlib import Path
@@ -58,11 +57,12 @@ TITLE = "Could any setting give the paper's tables? Calibration, sensitivity and
 FIT_DIR = Path(__file__).resolve().parent.parent / "wmr" / "scenarios" / "paper-fit"
 
 
-def _store(out: Path, quick: bool, digest: str) -> Path:
-    if quick:
-        return Path(out) / ".calibration-store"
-    base = Path(os.environ.get("WMR_STORES", Path.home() / ".cache" / "wmr" / "stores"))
-    return base / f"{STEM}-{digest}"
+def _store(out: Path, quick: bool) -> Path:
+    """The study's store: beside the quick record, else the studies' folder's ``calibration/``
+    (its manifest's digest decides whether it is resumed or set aside)."""
+    from wmr.engine.store import studies_folder
+
+    return Path(out) / ".calibration-store" if quick else studies_folder() / STEM
 
 
 # ---------------------------------------------------------------------------------------------
@@ -243,7 +243,7 @@ def compute(out: Path, quick: bool, workers: int | None, progress=None) -> dict:
     level = stages.QUICK if quick else stages.FULL
     digest = store_digest(level.name)
     t0 = time.perf_counter()
-    with Evaluator(_store(out, quick, digest), digest, workers, progress=progress) as ev:
+    with Evaluator(_store(out, quick), digest, workers, progress=progress) as ev:
         scr = stages.screening(ev, level)
         space = stages.Space.of(level, scr["active"], scr["fixed_at"])
         des = stages.design(ev, level, space)

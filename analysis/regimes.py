@@ -3,8 +3,10 @@
 A factorial over what the paper left unvaried, run through the sweep engine (``wmr.sweep``):
 
 - the **plant mechanism** (``wmr.plant``): the ideal unicycle, a 20 % wheel-radius error,
-  unequal wheels, 100 ms actuator lag plus a 2-sample delay, lateral slip, and the torque-driven
-  robot whose payload grows 50 % at 20 s (the shipped ``lemniscate-*`` scenarios' plants);
+  unequal wheels, 100 ms actuator lag plus a 2-sample delay, an outward lateral skid in turns
+  (``slip``, DESIGN §3.3), and a payload on a lagged velocity loop (an inner velocity loop whose
+  ~50 ms lag grows to ~75 ms when the mass grows 50 % at 20 s) (the shipped ``lemniscate-*``
+  scenarios' plants);
 - the **SGD rate** as read by the step: mu in {0.9, 9} with the plant Jacobian per step or per
   second (``jacobian_scale``), i.e. 1x, 10x, 100x and 1000x the paper's per-step reading;
 - the **initial PID gains**: good (the suite's default) or weak (a fifth of them);
@@ -29,7 +31,6 @@ from __future__ import annotations
 
 import itertools
 import math
-import os
 import sys
 import time
 from pathlib import Path
@@ -48,14 +49,17 @@ TITLE = "When does adaptation pay? Regimes of plant, learning rate, gains and no
 #: The arms, in table order; the PID family shares the factors of the SGD step.
 ARMS = ("pid", "adaptive-pid", "iapid-nn-dekf", "iapid-oracle", "backstepping", "adaptive-nn")
 PID_FAMILY = ARMS[:4]
-#: Plant mechanisms: the ``[plant]`` of each (the shipped lemniscate-* scenarios' plants).
+#: Plant mechanisms: the ``[plant]`` of each (the shipped lemniscate-* scenarios' plants): "slip"
+#: skids outward (``v_s = -slip v w``; the committed record's slip cells were run with the
+#: earlier inward sign, DESIGN §3.3), "payload" is a payload on a lagged velocity loop.
 MECHANISMS = {
     "ideal": "",
     "wheel-radius": "[plant]\nv_gain = 0.8\nw_gain = 0.8\n",
     "wheel-asymmetry": "[plant]\nv_from_w = 0.0075\nw_from_v = 0.3333333333333333\n",
     "lag-delay": "[plant]\nactuator_tau = 0.1\ndelay_steps = 2\n",
     "slip": "[plant]\nslip = 0.1\n",
-    "payload": ('[plant]\nmodel = "dynamic"\n[plant.dynamic]\nmass = 10.0\ninertia = 0.5\n'
+    "payload": ('[plant]\nmodel = "lagged-velocity"\n[plant.lagged-velocity]\nmass = 10.0\n'
+                "inertia = 0.5\n"
                 "friction = [0.5, 0.02]\n[[plant.change]]\nat = 20.0\nmass = 15.0\n"
                 "inertia = 0.75\n"),
 }  # fmt: skip
@@ -113,14 +117,12 @@ def _write_specs(folder: Path, d: dict) -> tuple[Path, Path]:
 
 
 def _store(out: Path, quick: bool) -> Path:
-    """Where the sweeps' stores live: beside nothing that is committed, named by the sources
-    (a change of wmr starts afresh; an interrupted study resumes)."""
-    from wmr._jit import source_digest
+    """Where the sweeps' stores live: beside nothing that is committed (the studies' folder's
+    ``regimes/``); an interrupted study resumes, a store of another design or of other code is
+    set aside and rebuilt (``wmr.engine.sweeps``)."""
+    from wmr.engine.store import studies_folder
 
-    if quick:
-        return Path(out) / ".regimes-store"
-    base = Path(os.environ.get("WMR_STORES", Path.home() / ".cache" / "wmr" / "stores"))
-    return base / f"{STEM}-{source_digest()}"
+    return Path(out) / ".regimes-store" if quick else studies_folder() / STEM
 
 
 def _frame(stores: list[Path], d: dict):
@@ -251,7 +253,8 @@ def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
     family, others = _write_specs(store / "specs", d)
     t0 = time.perf_counter()
     manifests = [sweep.run_sweep(sweep.load_spec(p), store / p.stem, workers=workers,
-                                 progress=None) for p in (family, others)]  # fmt: skip
+                                 progress=None, stale="set-aside")
+                 for p in (family, others)]  # fmt: skip
     seconds = time.perf_counter() - t0
     rows = _frame([store / "family", store / "others"], d)
     cs = cells(rows, d)

@@ -21,14 +21,15 @@ from wmr import controllers
 from wmr import scenario as scn
 from wmr.io import atomic_write_text
 
-__all__ = ["build", "main", "dynamic_channels", "DYNAMIC_SCENARIO"]
+__all__ = ["build", "main", "lagged_channels", "LAGGED_SCENARIO"]
 
-#: The shipped scenario whose torque-driven plant the DA-NN row of the assumptions evaluates.
-DYNAMIC_SCENARIO = "lemniscate-payload"
+#: The shipped scenario whose lagged velocity loop the DA-NN row of the assumptions evaluates.
+LAGGED_SCENARIO = "lemniscate-payload"
 
 
-def dynamic_channels(dyn, dt: float) -> dict:
-    """The inner velocity loop of the dynamic plant seen from a command held over one step.
+def lagged_channels(dyn, dt: float) -> dict:
+    """The inner velocity loop of the lagged-velocity plant seen from a command held over one
+    step.
 
     Per channel (``v`` with the mass, ``w`` with the inertia; ``wmr.plant``):
     ``mass v' = nominal_mass bw (a - v) - f v`` is first order with time constant
@@ -39,9 +40,9 @@ def dynamic_channels(dyn, dt: float) -> dict:
 
     Parameters
     ----------
-    dyn : wmr.scenario.PlantDynamic
-        The plant's dynamic parameters (``mass``, ``inertia``, ``friction``, ``nominal_*``,
-        ``bandwidth``).
+    dyn : wmr.scenario.LaggedVelocity
+        The plant's ``[plant.lagged-velocity]`` table (``mass``, ``inertia``, ``friction``,
+        ``nominal_*``, ``bandwidth``).
     dt : float
         Sample period [s].
 
@@ -62,20 +63,20 @@ def dynamic_channels(dyn, dt: float) -> dict:
 
 
 def _dann_row() -> tuple[str, str, str]:
-    """The assumptions row of DA-NN: its design, and what it can adapt to on the shipped dynamic
-    plant (before and after its change), computed by :func:`dynamic_channels`."""
+    """The assumptions row of DA-NN: its design, and what it can adapt to on the shipped lagged
+    velocity loop (before and after its change), computed by :func:`lagged_channels`."""
     import dataclasses
 
     dann = controllers.get("adaptive-nn").Settings()
-    sc = scn.load(scn.builtin(DYNAMIC_SCENARIO))
-    dyn = sc.plant.dynamic
+    sc = scn.load(scn.builtin(LAGGED_SCENARIO))
+    dyn = sc.plant.model_table
     phases = [("at start", dyn)]
     for ch in sc.plant.changes:
         keys = {k: v for k, v in ch.values.items() if k in ("mass", "inertia", "friction")}
         phases.append((f"from {ch.at:g} s", dataclasses.replace(phases[-1][1], **keys)))
     parts = []
     for label, d in phases:
-        c = dynamic_channels(d, sc.dt)
+        c = lagged_channels(d, sc.dt)
         parts.append(f"{label}: τ = {c['v']['tau']:.3f}/{c['w']['tau']:.3f} s, g = "
                      f"{c['v']['g']:.3f}/{c['w']['g']:.3f}, g ρ = "
                      f"{c['v']['g'] * c['v']['rho']:.3f}/{c['w']['g'] * c['w']['rho']:.3f}")
@@ -83,8 +84,8 @@ def _dann_row() -> tuple[str, str, str]:
              "EKF with the paper's P0, Q, R: u = u_bsc + NN(e1, e2, sin e3, cos e3 − 1, v_r, "
              "w_r), innovation q_r,k − q̂_k through the nominal unicycle's one-step Jacobian G")
     why = ("design not given; notes §4.2.  It compensates the error the base law leaves, as a "
-           "static function of (e, v_r, w_r).  On the dynamic plant (`wmr.plant`, "
-           f"`{DYNAMIC_SCENARIO}`, v/w channels) a command held one step moves the pose by "
+           "static function of (e, v_r, w_r).  On the lagged velocity loop (`wmr.plant`, "
+           f"`{LAGGED_SCENARIO}`, v/w channels) a command held one step moves the pose by "
            "g ρ G, ρ = 1 − (τ/dt)(1 − e^(−dt/τ)) (" + "; ".join(parts) + "): its EKF's direction "
            "has the right sign and an effect overstated by 1/(g ρ); a static gain loss g is a "
            "function of v_r, w_r (it can learn the correction (1/g − 1) v_r); the lag τ is not "

@@ -7,6 +7,7 @@ Each notebook is written to ``notebooks/NAME.ipynb`` with its outputs; nbval re-
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 
@@ -14,6 +15,9 @@ import nbformat
 from nbclient import NotebookClient
 
 HERE = Path(__file__).resolve().parent
+# the kernels import the studies (analysis/) from the checkout, as under `make test`
+os.environ["PYTHONPATH"] = os.pathsep.join(
+    p for p in (str(HERE.parent), os.environ.get("PYTHONPATH")) if p)
 SETUP = """\
 # NBVAL_IGNORE_OUTPUT
 import numpy as np

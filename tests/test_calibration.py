@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from cases import CROSS_MACHINE_RTOL
 
 from analysis import _calibration_methods as methods
 from analysis import _calibration_prior as prior
@@ -308,16 +309,17 @@ def _small_tasks(n=3):
             for t in (space.task(u, (0, 1)) for u in np.linspace(0.1, 0.9, 2 * n).reshape(n, 2))]
 
 
-def test_store_resumes_and_refuses_another_version(tmp_path):
+def test_store_resumes_and_sets_another_version_aside(tmp_path, capsys):
     from analysis._calibration_store import Evaluator, read_store, run_task
 
+    folder = tmp_path / "store"
     tasks = _small_tasks()
-    with Evaluator(tmp_path, "abc", workers=1, progress=False) as ev:
+    with Evaluator(folder, "abc", workers=1, progress=False) as ev:
         first = ev.evaluate(tasks[:2])
         assert ev.runs_this_time == 2 * 2 * 3
-    stored = read_store(tmp_path)
+    stored = read_store(folder)
     assert set(stored) == {t.key for t in tasks[:2]}
-    with Evaluator(tmp_path, "abc", workers=1, progress=False) as ev:
+    with Evaluator(folder, "abc", workers=1, progress=False) as ev:
         again = ev.evaluate(tasks)  # two from the store, one run now
         assert ev.runs_this_time == 2 * 3 and ev.loaded == 2
     for a, b in zip(first, again[:2], strict=True):
@@ -326,8 +328,44 @@ def test_store_resumes_and_refuses_another_version(tmp_path):
     key, direct = run_task(tasks[2])
     assert np.array_equal(again[2], direct, equal_nan=True)
     assert np.all(direct[..., -1] == 0) and direct.shape == (2, 3, 7)
-    with pytest.raises(ValueError, match="another version"):
-        Evaluator(tmp_path, "xyz", workers=1)
+    capsys.readouterr()
+    with Evaluator(folder, "xyz", workers=1, progress=False) as ev:  # other sources: stale
+        assert ev.loaded == 0 and ev.evaluate(tasks[:1])[0].shape == (2, 3, 7)
+    (aside,) = tmp_path.glob("store.stale-*")
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and aside.name in err and "digest abc != xyz" in err
+    assert set(read_store(aside)) == {t.key for t in tasks}  # set aside, not lost
+
+
+def test_a_task_cut_by_an_interruption_runs_only_its_missing_runs(tmp_path):
+    """A store holding part of a task's rows (a shard flushed mid-task): the task is not taken
+    as finished; only its missing runs run, and the result is the whole task's."""
+    from analysis._calibration_store import Evaluator, run_task, task_jobs
+    from wmr.engine.jobs import job_row
+
+    (task,) = _small_tasks(1)
+    with Evaluator(tmp_path, "abc", workers=1, progress=False) as ev:
+        ev.store.write([job_row(j) for j in task_jobs(task)[:4]])  # 4 of its 6 runs
+    with Evaluator(tmp_path, "abc", workers=1, progress=False) as ev:
+        (arr,) = ev.evaluate([task])
+        assert ev.runs_this_time == 2
+    assert np.array_equal(arr, run_task(task)[1], equal_nan=True)
+
+
+def test_the_store_digest_covers_the_shipped_scenarios_it_reads(tmp_path, monkeypatch):
+    from analysis._calibration_store import store_digest
+
+    copies = {}
+    for name in prior.SCENARIOS:
+        copies[name] = tmp_path / f"{name}.toml"
+        copies[name].write_text(scn.builtin(name).read_text())
+    base = store_digest("quick")
+    monkeypatch.setattr(scn, "builtin", lambda name: copies[name])
+    assert store_digest("quick") == base  # the same bytes: the same digest
+    name = prior.SCENARIOS[1]
+    copies[name].write_text(copies[name].read_text() + "\n# edited\n")
+    assert store_digest("quick") != base
+    assert store_digest("full") != store_digest("quick")
 
 
 def test_an_error_is_a_row_not_a_crash():
@@ -524,13 +562,30 @@ def test_committed_record_checks_and_its_files_agree():
     assert record["points"]["n"] >= 4096
 
 
+# Why the committed record's slip points are not rerun: the calibration's slip perturbation
+# (``prior.perturbation("slip", ...)``) was run with the earlier inward skid, v_s = +slip v w;
+# DESIGN §3.3 now has it outward, v_s = -slip v w (``wmr.plant``), so a rerun of those points
+# gives other numbers (point 0: rms log ratio 1.37582 committed, 1.35747 outward).  They are
+# rerun with the calibration issue (issue 20, item 2); the other perturbations are unchanged.
+
+
 @pytest.mark.skipif(not COMMITTED.exists(), reason="no committed calibration record")
 def test_committed_record_is_what_its_runs_give():
     """Three design points rebuilt from the committed record and run again (2 seeds x 12 runs
-    each) give the committed points file's values: the best point, the first and the last."""
+    each) give the committed points file's values: the best point, the first and the last of
+    those whose perturbation is not the lateral slip (the comment above says why).
+
+    Point 4095 (a slip point) also amplified the last-bit difference of a record made on
+    another CPU (``cases.CROSS_MACHINE_RTOL``): its rms log ratio reran here as 1.434127 against
+    the recorded 1.434112 before the sign change."""
+    from analysis.calibration import read_points
+
     record = json.loads(COMMITTED.read_text())
-    n = record["points"]["n"]
-    _rerun_points(record, ROOT / "paper", [record["feasible"]["best_point"]["index"], 0, n - 1])
+    kind = read_points(ROOT / "paper", record)["perturbation"]
+    others = [i for i, k in enumerate(kind) if k != "slip"]
+    best = record["feasible"]["best_point"]["index"]
+    _rerun_points(record, ROOT / "paper", [i for i in (best, others[0], others[-1])
+                                           if kind[i] != "slip"])  # fmt: skip
 
 
 @pytest.mark.skipif(not COMMITTED.exists(), reason="no committed calibration record")
@@ -547,4 +602,5 @@ def test_committed_fit_scenarios_reproduce_the_record():
             for c in prior.CONTROLLERS:
                 r = simulate(sc, c, seed, keep_trajectory=False)
                 ours += [r.rmse[a] if not r.diverged else prior.DIVERGED_RMSE for a in prior.AXES]
-        assert ours == fit["per_seed"][i_seed], seed
+        # the record was made on another CPU: its last bits differ (cases.CROSS_MACHINE_RTOL)
+        assert ours == pytest.approx(fit["per_seed"][i_seed], rel=CROSS_MACHINE_RTOL), seed

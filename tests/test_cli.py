@@ -44,6 +44,11 @@ CSV_HEADER = [
     "theta_hat",
     "v",
     "w",
+    "x_meas",
+    "y_meas",
+    "theta_meas",
+    "dv",
+    "dw",
 ]
 
 
@@ -101,7 +106,10 @@ def test_run_writes_summary_trajectory_and_figure(name, tmp_path, capsys):
     per_step = np.array([[float(x) for x in row[9:14]] for row in rows[1:-1]])
     assert_array_equal(per_step[:, :3], r.q_hat)
     assert_array_equal(per_step[:, 3:], r.u)
-    assert rows[-1][9:] == [""] * 5  # no input after the last pose
+    meas = np.array([[float(x) for x in row[14:19]] for row in rows[1:-1]])
+    assert_array_equal(meas[:, :3], r.z)
+    assert_array_equal(meas[:, 3:], r.disturbance)
+    assert rows[-1][9:] == [""] * 10  # no input after the last pose
 
     png = (out / "tracking.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and png[12:16] == b"IHDR"
@@ -125,9 +133,9 @@ def test_run_of_a_non_ideal_plant_names_it_in_the_header_and_the_summary(tmp_pat
     code, stdout, err = _run(["run", str(path), "--controller", "pid", "--out", str(out)], capsys)
     assert (code, err) == (0, "")
     header = stdout.splitlines()[0]
-    assert "plant: dynamic" in header and "at 20 s: mass 15.0" in header
+    assert "plant: lagged-velocity" in header and "at 20 s: mass 15.0" in header
     plant = json.loads((out / "summary.json").read_text())["plant"]
-    assert plant["model"] == "dynamic" and plant["dynamic"]["mass"] == 10.0
+    assert plant["model"] == "lagged-velocity" and plant["lagged-velocity"]["mass"] == 10.0
     assert plant["changes"] == [{"at": 20.0, "mass": 15.0, "inertia": 0.75}]
 
 

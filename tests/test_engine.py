@@ -1,9 +1,12 @@
-"""The sweep engine on real Dask (issue 13): a LocalCluster, and a scheduler plus worker
+"""The run engine on real Dask (issues 13, 19): a LocalCluster, and a scheduler plus worker
 processes started as separate programs on 127.0.0.1; faults: a worker killed mid-sweep, the
-driver killed with SIGKILL.  Every time the rows equal the serial engine's."""
+driver killed with SIGKILL, a run that fails with a transient error once or always, a worker
+process that dies inside a job, a run that raises (an error row) and ``--retry-errors``.  Every
+time the rows equal the serial engine's."""
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import signal
@@ -12,11 +15,14 @@ import sys
 import time
 from pathlib import Path
 
+import faults
 import pytest
 from cases import SHORT_LEMNISCATE
 
 from wmr import scenario as scn
 from wmr import study, sweep
+from wmr.engine.faults import RETRIES, RetriesExhausted
+from wmr.engine.jobs import job_row
 
 SPEC = """\
 name = "engine"
@@ -158,4 +164,90 @@ def test_sigkill_of_the_driver_then_rerun_resumes_to_the_same_rows(serial, tmp_p
     assert done.returncode == 0, done.stderr
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["complete"] and manifest["runs_this_time"] == manifest["jobs"] - killed_with
+    assert _rows(out).equals(serial)
+
+
+# ---------------------------------------------------------------------------------------------
+# Transient failures and error rows on a LocalCluster of worker processes (``tests/faults.py``:
+# the run itself raises, in the worker, for the chosen jobs)
+
+
+@pytest.fixture(scope="module")
+def local(tmp_path_factory):
+    """One LocalCluster of 2 worker processes for the fault tests, and its spec folder."""
+    folder = tmp_path_factory.mktemp("faults")
+    _spec(folder)
+    with study.engine(2) as eng:
+        yield eng, folder
+
+
+def _sweep(local, out, fn, **kw):
+    """``run_sweep`` of the short spec on the module's cluster (left running), a job per
+    batch."""
+    eng, folder = local
+    return sweep.run_sweep(sweep.load_spec(folder / "spec.toml"), out, eng=eng, progress=False,
+                           batch_seconds=0.001, fn=fn, **kw)  # fmt: skip
+
+
+def test_a_transient_error_is_retried_and_never_a_row(serial, local, tmp_path):
+    """An OSError raised by a run on its first attempt (jobs 3 and 20): its batch runs again
+    and the rows are the serial engine's, none an error."""
+    fn = functools.partial(faults.oserror_once, str(tmp_path), frozenset({3, 20}))
+    m = _sweep(local, tmp_path / "out", fn)
+    rows = _rows(tmp_path / "out")
+    assert (rows.status == "ok").all() and m["errors"] == 0 and m["retried_batches"] == 2
+    assert rows.equals(serial)
+
+
+def test_a_worker_killed_inside_a_job_is_retried_not_an_error(serial, local,
+                                                              tmp_path):  # fmt: skip
+    """The worker process dies (os._exit) on the first attempt of job 7: Dask reschedules the
+    batch on a live worker; the row is the serial one, not an error."""
+    fn = functools.partial(faults.exit_once, str(tmp_path), frozenset({7}))
+    m = _sweep(local, tmp_path / "out", fn)
+    assert (tmp_path / "attempted-7").exists()  # it did die once
+    assert m["errors"] == 0 and _rows(tmp_path / "out").equals(serial)
+
+
+def test_a_raising_run_is_an_error_row_and_retry_errors_replaces_it(serial, local,
+                                                                    tmp_path):  # fmt: skip
+    """A ValueError raised by the runs of jobs 2 and 31 is an error row each (the sweep goes
+    on, nothing retried); once its cause is gone, ``retry_errors`` runs those two only and their
+    new rows supersede the error rows: the store reads as the serial sweep."""
+    cause = tmp_path / "cause"
+    cause.write_text("broken")
+    fn = functools.partial(faults.value_error_while, str(cause), frozenset({2, 31}))
+    out = tmp_path / "out"
+    m = _sweep(local, out, fn)
+    rows = _rows(out)
+    bad = rows[rows.status == "error"]
+    assert list(bad.job_id) == [2, 31] and m["errors"] == 2 and m["retried_batches"] == 0
+    assert bad.error.str.startswith("ValueError: injected").all() and bad.rmse_x.isna().all()
+    ok = rows.status == "ok"
+    assert rows[ok].equals(serial[ok])
+    again = _sweep(local, out, fn)  # the cause is still there: nothing is rerun
+    assert again["runs_this_time"] == 0 and again["errors"] == 2
+    cause.unlink()
+    shards = len(list((out / "rows").glob("part-*.parquet")))
+    fixed = _sweep(local, out, fn, retry_errors=True)
+    assert fixed["runs_this_time"] == 2 and fixed["retried_errors"] == 2 and fixed["errors"] == 0
+    assert len(list((out / "rows").glob("part-*.parquet"))) > shards  # old shards untouched
+    assert _rows(out).equals(serial)
+
+
+def test_when_the_retries_run_out_the_sweep_stops_and_resumes(serial, local,
+                                                              tmp_path):  # fmt: skip
+    """Job 30 fails with an OSError on every attempt: after 1 + RETRIES attempts the sweep
+    stops (RetriesExhausted, naming the error); the rows that finished are stored, none of them
+    an error and none for job 30; the same sweep then resumes to the serial rows."""
+    fn = functools.partial(faults.oserror_always, frozenset({30}))
+    out = tmp_path / "out"
+    with pytest.raises(RetriesExhausted, match=f"failed {1 + RETRIES} times .*OSError.*no space"):
+        _sweep(local, out, fn)
+    kept = sweep.finished_jobs(out)
+    assert 30 not in kept and not sweep.error_jobs(out)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["done"] == len(kept) and not manifest["complete"]
+    m = _sweep(local, out, job_row)
+    assert m["runs_this_time"] == 36 - len(kept) and m["complete"]
     assert _rows(out).equals(serial)

@@ -17,18 +17,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
+from test_extending import _example as example
 
 from wmr import cli, controllers, plugins
 from wmr import scenario as scn
 from wmr.sim import simulate
-
-DOC = Path(__file__).resolve().parents[1] / "docs" / "extending.md"
-
-
-def example(name: str) -> str:
-    m = re.search(rf"<!-- example: {name} -->\n```python\n(.*?)```", DOC.read_text(), re.S)
-    assert m, f"no example {name!r} in {DOC}"
-    return m.group(1)
 
 
 @pytest.fixture
@@ -199,3 +192,42 @@ def test_the_worker_loader_imports_the_file_under_the_drivers_module_name(plugin
                           capture_output=True, text=True, cwd=tmp_path)  # fmt: skip
     assert done.returncode == 0, done.stderr
     assert p.module in done.stdout
+
+
+PLUGIN_SPEC = """\
+name = "plugin-sweep"
+scenarios = ["short.toml"]
+controllers = ["simple-compiled", "simple-python"]
+seeds = 2
+plugins = ["my_trackers.py"]
+
+[factors]
+"controllers.*.gains" = [[1.0, 2.0], [2.0, 4.0], [3.0, 1.0]]
+"""
+
+
+def test_a_plugin_sweeps_on_every_engine_with_the_serial_rows(tmp_path_factory, clean_registry):
+    """``plugins = [...]`` in a spec: serial, a 2-worker LocalCluster, and a scheduler with two
+    worker processes started on 127.0.0.1 in a folder that does not hold the plugin (the file's
+    content travels to the workers: ``wmr.engine.plugins_dask``) give the same rows."""
+    from cases import SHORT_LEMNISCATE, rows_on_every_engine
+
+    from wmr import sweep
+
+    folder = tmp_path_factory.mktemp("plugin-sweep")
+    (folder / "my_trackers.py").write_text(example("plugin-file"))
+    (folder / "short.toml").write_text(SHORT_LEMNISCATE.format(duration=2.0))
+    (folder / "spec.toml").write_text(PLUGIN_SPEC)
+    spec = sweep.load_spec(folder / "spec.toml")
+    assert "simple-python" in controllers.REGISTRY
+
+    rows_on_every_engine(spec, folder, tmp_path_factory.mktemp("elsewhere"))
+    assert len(sweep.read_rows(folder / "serial")) == 3 * 2 * 2
+
+
+def test_a_bad_plugin_in_a_spec_is_a_sweep_error(tmp_path, clean_registry):
+    from wmr import sweep
+
+    (tmp_path / "spec.toml").write_text(PLUGIN_SPEC.replace("my_trackers.py", "nowhere.py"))
+    with pytest.raises(sweep.SweepError, match=r"plugins = 'nowhere.py'.*cannot be read"):
+        sweep.load_spec(tmp_path / "spec.toml")

@@ -102,7 +102,7 @@ def test_interrupted_reproduce_keeps_previous_results_and_a_rerun_completes(tmp_
     assert not (out / ".staging").exists()
 
 
-# --- The assumptions: what DA-NN can adapt to on the dynamic plant ----------------------------
+# --- The assumptions: what DA-NN can adapt to on the lagged velocity loop ----------------------
 
 #: The FD step of wmr.identification.plant_jacobian gives ~1e-10 relative; over one step the
 #: heading turns by w dt <= ~5e-3 rad, which moves the (x, y) norm of the v column by ~1e-5.
@@ -110,35 +110,35 @@ FD_RTOL, TURN_RTOL = 1e-7, 1e-4
 
 
 @pytest.mark.parametrize("k", [500, 3000], ids=["before the payload", "after the payload"])
-def test_dynamic_channels_give_the_true_robots_one_step_jacobian(k):
+def test_lagged_channels_give_the_true_robots_one_step_jacobian(k):
     """Oracle: the true robot's step (wmr.plant) differentiated in the command by central
-    differences (wmr.identification.plant_jacobian), along a run of the shipped dynamic plant:
-    the heading row of the w column is g_w rho_w dt, the (x, y) part of the v column has norm
-    g_v rho_v dt, where the kinematic G has dt."""
+    differences (wmr.identification.plant_jacobian), along a run of the shipped lagged-velocity
+    plant: the heading row of the w column is g_w rho_w dt, the (x, y) part of the v column has
+    norm g_v rho_v dt, where the kinematic G has dt."""
     import dataclasses
 
     from wmr import scenario as scn
     from wmr.identification import plant_jacobian
     from wmr.sim import simulate
 
-    sc = scn.load(scn.builtin(report.DYNAMIC_SCENARIO))
+    sc = scn.load(scn.builtin(report.LAGGED_SCENARIO))
     run = simulate(sc, "backstepping", 0)
     J = plant_jacobian(sc, run)(k, run.q[k], run.u[k], sc.dt)
-    dyn = sc.plant.dynamic
+    dyn = sc.plant.model_table
     if k * sc.dt >= sc.plant.changes[0].at:
         dyn = dataclasses.replace(dyn, **{key: v for key, v in sc.plant.changes[0].values.items()})
-    c = report.dynamic_channels(dyn, sc.dt)
+    c = report.lagged_channels(dyn, sc.dt)
     assert J[2, 1] == pytest.approx(c["w"]["g"] * c["w"]["rho"] * sc.dt, rel=FD_RTOL)
     assert np.hypot(*J[:2, 0]) == pytest.approx(c["v"]["g"] * c["v"]["rho"] * sc.dt,
                                                 rel=TURN_RTOL)  # fmt: skip
     assert 0.0 < c["v"]["rho"] < 1.0 and c["v"]["g"] < 1.0  # a lag and a friction loss
 
 
-def test_the_kinematic_limit_of_the_dynamic_channels():
+def test_the_kinematic_limit_of_the_lagged_channels():
     """A very fast inner loop without friction is the kinematic model: g = 1, rho -> 1."""
-    from wmr.scenario import PlantDynamic
+    from wmr.scenario import LaggedVelocity
 
-    c = report.dynamic_channels(PlantDynamic(bandwidth=(1e7, 1e7)), 0.01)
+    c = report.lagged_channels(LaggedVelocity(bandwidth=(1e7, 1e7)), 0.01)
     assert c["v"]["g"] == 1.0 and c["v"]["rho"] == pytest.approx(1.0, abs=1e-5)
 
 

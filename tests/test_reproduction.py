@@ -37,7 +37,8 @@ HAND_LISTS = {
     "rotation-printed": ALL,
     "nn-jacobian-printed": {"iapid-nn-dekf"},
     "feed-forward": {"pid", "adaptive-pid", "iapid-nn-dekf"},
-    "pose-filtered": {"backstepping", "pid", "adaptive-pid", "adaptive-nn"},
+    # adaptive-bsc was registered after the lists were written (issue 21); it acts on the raw pose
+    "pose-filtered": {"backstepping", "pid", "adaptive-pid", "adaptive-nn", "adaptive-bsc"},
     "pose-raw": {"iapid-nn-dekf"},
     "bsc-gains-low": {"backstepping"},
     "bsc-gains-kanayama": {"backstepping"},

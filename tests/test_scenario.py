@@ -193,3 +193,84 @@ def test_from_dict_returns_a_scenario_or_raises_scenario_error(doc):
         assert message.startswith("prop.toml: ")
     else:
         _check_valid(sc)
+
+
+_PLANT_BASE = tomllib.loads(
+    BASE_TOML + '[plant]\nmodel = "lagged-velocity"\nv_gain = 0.9\ndelay_steps = 1\nslip = -0.1\n'
+    "[plant.lagged-velocity]\nmass = 12.0\nfriction = [0.5, 0.02]\n"
+    "[[plant.change]]\nat = 1.0\nmass = 15.0\nw_gain = 1.1\n")
+
+
+@settings(max_examples=300, derandomize=True, database=None, deadline=None,
+          suppress_health_check=[HealthCheck.too_slow])  # fmt: skip
+@given(mutated_scenarios(_PLANT_BASE) | mutated_scenarios(_PLANT_BASE, values=_PY_VALUES))
+def test_any_mutation_of_a_plant_is_a_plant_or_a_scenario_error(doc):
+    """The [plant] parser (wmr.plantspec.parse) on mutations of a plant with a model table and a
+    change: a valid plant whose parameter rows are finite, or a one-line ScenarioError."""
+    try:
+        sc = scenario.from_dict(doc, "prop.toml")
+    except ScenarioError as err:
+        assert "\n" not in str(err) and str(err).startswith("prop.toml: ")
+    else:
+        _check_valid(sc)
+        rows = [sc.plant.row()]
+        for change in sc.plant.changes:
+            rows.append(sc.plant.row(rows[-1], change.values))
+        assert all(math.isfinite(x) for r in rows for x in r)
+
+
+# --- a new plant model is a row of wmr.plantspec.MODELS (DESIGN §3.7 comes this way) ------------
+
+
+def test_a_new_model_is_a_row_of_the_models_table(tmp_path, monkeypatch):
+    """A model with its own table, excluded [plant] keys and a finish hook that reads a file
+    relative to the scenario: the parser, the changeable keys, ideal, describe() and to_json()
+    take it from the row alone."""
+    from wmr import plantspec
+    from wmr._settings import positive
+
+    @plantspec.plant_table
+    class Toy:
+        """A toy model's table."""
+
+        file: str = plantspec.param("", unit="-", doc="A file, relative to the scenario.")
+        mass: float = plantspec.param(10.0, unit="kg", doc="Mass (> 0).", rule=positive,
+                                      changeable=True)  # fmt: skip
+
+    def finish(table, context):
+        path = tmp_path / table.file
+        if not path.is_file():
+            raise SettingError("plant.toy.file", table.file, "no such file")
+        assert context.source.endswith("s.toml") and context.dt == 0.01
+        return dataclasses.replace(table, file=path.read_text())
+
+    monkeypatch.setitem(plantspec.MODELS, "toy", plantspec.Model(
+        "toy", Toy, ("v_gain", "slip"), "the toy has its own wheels", "a toy", finish))
+    (tmp_path / "robot.txt").write_text("<robot/>")
+
+    def load(plant: str):
+        path = tmp_path / "s.toml"
+        path.write_text(BASE_TOML + plant)
+        return scenario.load(path)
+
+    sc = load('[plant]\nmodel = "toy"\ndelay_steps = 1\n[plant.toy]\nfile = "robot.txt"\n'
+              "mass = 12.0\n[[plant.change]]\nat = 1.0\nmass = 15.0\n")
+    p = sc.plant
+    assert p.model_table == Toy("<robot/>", 12.0) and p.changes[0].values == {"mass": 15.0}
+    assert not p.ideal and p.describe().startswith("plant: toy; delay 1 steps;")
+    assert p.to_json()["toy"] == {"file": "<robot/>", "mass": 12.0} and "v_gain" not in p.to_json()
+    assert plantspec.changeable("toy") == ("w_gain", "v_from_w", "w_from_v", "actuator_tau",
+                                           "mass")  # fmt: skip
+    for plant, key in (('[plant]\nmodel = "toy"\nv_gain = 0.9\n[plant.toy]\n', "plant.v_gain"),
+                       ('[plant]\nmodel = "toy"\n', "plant.toy"),
+                       ('[plant]\n[plant.toy]\nmass = 3.0\n', "plant.toy"),
+                       ('[plant]\nmodel = "toy"\n[plant.toy]\nmass = 0.0\n', "plant.toy.mass"),
+                       ('[plant]\nmodel = "toy"\n[plant.toy]\nfile = "none.txt"\n',
+                        "plant.toy.file"),
+                       ('[plant]\nmodel = "toy"\n[plant.toy]\nfile = "robot.txt"\n'
+                        '[[plant.change]]\nat = 1.0\nslip = 0.1\n', "plant.change[0].slip"),
+                       ('[plant]\n[[plant.change]]\nat = 1.0\nfile = "x"\n',
+                        "plant.change[0].file")):  # fmt: skip
+        with pytest.raises(ScenarioError) as err:
+            load(plant)
+        assert err.value.key == key and "\n" not in str(err.value), str(err.value)

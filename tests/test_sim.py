@@ -338,3 +338,22 @@ def test_rmse_after_transient_equals_metrics_on_the_tail_of_the_trajectory():
     for key, value in expected.items():
         assert r.rmse_after_transient[key] == pytest.approx(value, rel=1e-12)
     assert r.rmse_after_transient["position"] < r.rmse["position"]  # the transient dominates
+
+
+def test_the_log_holds_the_measured_pose_and_the_disturbance_in_force():
+    """A robot's log (``wmr identify`` reads it): ``z = q + noise`` -- a raw-pose controller
+    acts on exactly ``z`` -- with the scenario's noise level, and ``(dv, dw)`` inside the
+    window only."""
+    sc = scn.load(scn.builtin("sinusoid-perturbed"))
+    r = sim.simulate(sc, "backstepping", 0)
+    assert not sc.estimator.filters("backstepping")
+    assert_array_equal(r.z, r.q_hat)
+    noise = r.z - r.q[:-1]
+    assert_allclose(noise.std(axis=0), sc.noise.pose_std, rtol=0.05)  # 4,000 draws
+    (d,) = sc.disturbances
+    t = r.t[:-1]
+    on = (d.start <= t) & (t < d.stop)
+    assert_array_equal(r.disturbance[on], np.broadcast_to(d.velocity, (on.sum(), 2)))
+    assert np.all(r.disturbance[~on] == 0.0)
+    assert_array_equal(r.signal("dv"), r.disturbance[:, 0])
+    assert_array_equal(r.signal("theta_meas"), r.z[:, 2])

@@ -16,6 +16,8 @@ from cases import SHORT_LEMNISCATE
 from numpy.testing import assert_allclose
 
 from wmr import cli, sweep
+from wmr.engine import batching, sweeps
+from wmr.engine.jobs import job_row
 from wmr.sim import simulate
 
 SPEC = """\
@@ -60,12 +62,14 @@ def test_batches_keep_the_order_and_shrink_toward_the_end(tmp_path, workers):
              ("backstepping", True): 5e-4}  # fmt: skip
     todo = list(range(3, spec.n_jobs, 2))
 
-    def cost(j):
+    def cost(j):  # the load of job j, computed here from the spec's layout
         point, s, c, _ = spec.job(j)
         sc = spec.runs[point][s]
         return sc.n_steps * costs[(spec.controllers[c], sc.plant.ideal)]
 
-    groups = sweep.batches(spec, todo, costs, 2.0, workers)
+    loads = batching.job_loads(sweep.jobs(spec, todo), costs)
+    assert loads == [cost(j) for j in todo]
+    groups = [[todo[i] for i in g] for g in batching.batches(loads, 2.0, workers)]
     assert [j for g in groups for j in g] == todo
     left = sum(map(cost, todo))
     for g, after in zip(groups, groups[1:] + [None], strict=True):
@@ -76,6 +80,7 @@ def test_batches_keep_the_order_and_shrink_toward_the_end(tmp_path, workers):
         left -= work
     assert abs(left) < 1e-9
     assert sum(map(cost, groups[-1])) <= sum(map(cost, todo)) / (2 * workers) / 4
+    assert batching.batches(loads, 0.0, workers) == [range(i, i + 1) for i in range(len(todo))]
 
 
 def test_jobs_are_the_nested_product_and_each_row_is_its_run(tmp_path):
@@ -124,11 +129,9 @@ def test_resume_skips_finished_jobs_and_gives_the_uninterrupted_rows(tmp_path):
     sweep.run_sweep(spec, full, workers=1, progress=False)
     part = tmp_path / "part"
     sweep.check_out(part, spec)
-    first = sweep.job_rows(spec, range(0, 24, 3))  # a previous, interrupted sweep's shard
-    (part / "rows").mkdir(parents=True)
-    sweep.write_shard(part, spec, first)
-    (part / "manifest.json").write_text(json.dumps({"spec_digest": spec.digest,
-                                                    "run_seconds_total": 1.5}))  # fmt: skip
+    store = sweeps.open_store(part, spec)  # a previous, interrupted sweep's shard
+    store.write([job_row(j) for j in sweep.jobs(spec, range(0, 24, 3))])
+    store.write_manifest({**store.manifest, "run_seconds_total": 1.5})
     manifest = sweep.run_sweep(spec, part, workers=1, progress=False)
     assert manifest["runs_this_time"] == spec.n_jobs - 8 and manifest["complete"]
     assert _rows(part).equals(_rows(full))  # no job twice, none lost, the same values
@@ -158,9 +161,11 @@ def test_the_store(tmp_path):
     assert "## " not in (out / "summary.md").read_text().split("\n")[0]
     assert "Main effect of `plant.v_gain`" in (out / "summary.md").read_text()
     assert (out / "summary.png").read_bytes()[:4] == b"\x89PNG"
-    import pandas as pd  # the README's way of reading a store
+    import pandas as pd  # the README's ways of reading a store
 
-    rows = pd.read_parquet(out / "rows")
+    rows = sweep.read_rows(out).to_pandas()
+    raw = pd.read_parquet(out / "rows")  # (no row superseded here: the same rows)
+    assert raw.sort_values("job_id").reset_index(drop=True).equals(_rows(out))
     assert len(rows) == spec.n_jobs and set(rows.job_id) == set(range(spec.n_jobs))
     means = rows[rows.status == "ok"].groupby(["controller", "plant.v_gain"]).rmse_position.mean()
     assert len(means) == len(spec.controllers) * len(spec.points)
@@ -274,3 +279,71 @@ def test_measures_add_their_columns(tmp_path):
     w = (run.t >= 1.0) & (run.t < 1.0 + measures.RECOVERY_WINDOW)
     rec = np.sqrt(np.mean(np.sum((run.ref[w, :2] - run.q[w, :2]) ** 2, axis=1)))
     assert df.iloc[j].recovery_rmse == rec
+
+
+def _raising(monkeypatch, err, controller="adaptive-pid", seed=1):
+    """Runs of ``controller`` with ``seed`` raise ``err`` (serial engine: this process)."""
+    import wmr.sim
+
+    real = wmr.sim.simulate
+
+    def flaky(sc, c, s, **kw):
+        if c == controller and s == seed:
+            raise err
+        return real(sc, c, s, **kw)
+
+    monkeypatch.setattr(wmr.sim, "simulate", flaky)
+
+
+def test_retry_errors_reruns_the_error_rows_once_their_cause_is_gone(tmp_path, monkeypatch,
+                                                                    capsys):  # fmt: skip
+    path = _spec(tmp_path)
+    full, out = tmp_path / "full", tmp_path / "out"
+    argv = ["sweep", str(path), "--out", str(out), "--workers", "1"]
+    assert cli.main(["sweep", str(path), "--out", str(full), "--workers", "1"]) == 0
+    with monkeypatch.context() as m:
+        _raising(m, ValueError("a bad setting"))
+        assert cli.main(argv) == 0
+    assert set(_rows(out)[lambda d: d.status == "error"].job_id) == set(sweep.error_jobs(out))
+    assert len(sweep.error_jobs(out)) == 4
+    assert cli.main(argv) == 0 and len(sweep.error_jobs(out)) == 4  # resume: errors are rows
+    capsys.readouterr()
+    assert cli.main([*argv, "--retry-errors"]) == 0
+    assert "done: 24/24 runs in the store (4 this time" in capsys.readouterr().out
+    assert _rows(out).equals(_rows(full)) and not sweep.error_jobs(out)
+
+
+def test_a_transient_error_that_persists_is_exit_1_one_line_and_resumes(tmp_path, monkeypatch,
+                                                                        capsys):  # fmt: skip
+    """An OSError on every attempt of one job: the batch is tried 1 + RETRIES times, then the
+    command stops with one line (exit 1) after storing what finished (no error row); the same
+    command resumes to the rows of an uninterrupted sweep."""
+    from wmr.engine.faults import RETRIES
+
+    path = _spec(tmp_path)
+    out, full = tmp_path / "out", tmp_path / "full"
+    argv = ["sweep", str(path), "--out", str(out), "--workers", "1", "--batch-seconds", "1e-9"]
+    calls = []
+    with monkeypatch.context() as m:
+        import wmr.sim
+
+        real = wmr.sim.simulate
+
+        def failing(sc, c, s, **kw):
+            if c == "adaptive-pid" and s == 1:
+                calls.append(1)
+                raise OSError(28, "No space left on device")
+            return real(sc, c, s, **kw)
+
+        m.setattr(wmr.sim, "simulate", failing)
+        capsys.readouterr()
+        assert cli.main(argv) == 1
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith("error: a batch of 1 run (wmr-sweep-") and "failed 3 times" in err, err
+    assert "OSError: [Errno 28] No space left on device" in err and "resume" in err
+    assert len(calls) == 1 + RETRIES
+    kept = sweep.finished_jobs(out)
+    assert kept == {0, 1, 2} and not sweep.error_jobs(out)  # job 3 is adaptive-pid, seed 1
+    assert cli.main(argv) == 0
+    sweep.run_sweep(sweep.load_spec(path), full, workers=1, progress=False)
+    assert _rows(out).equals(_rows(full))

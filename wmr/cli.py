@@ -1,5 +1,5 @@
-"""Command line: ``wmr run | reproduce | report | analyze | bench | sweep | settings | cache``
-(§3.2, §3.5, §3.8).
+"""Command line: ``wmr run | reproduce | report | analyze | bench | sweep | settings | cache |
+identify`` (DESIGN §3.2, §3.5, §3.8).
 
 Exit codes: 0 success; 2 bad input (one line ``error: ...`` on stderr naming the file, key and
 value; nothing written); 1 an unexpected failure.  A diverged run is a result, not an error.
@@ -173,15 +173,37 @@ def _for_figure(r):
                                final=None)  # fmt: skip
 
 
+def _checkout() -> Path | None:
+    """The wmr repository checkout this ``wmr`` belongs to (its ``analysis/`` beside ``wmr/``):
+    the package's own folder's parent (an editable install), else the working folder or one of
+    its parents."""
+    import wmr
+
+    here = Path(wmr.__file__).resolve().parent.parent
+    for root in (here, *(p for p in (Path.cwd(), *Path.cwd().parents))):
+        if (root / "analysis" / "__init__.py").is_file() and (root / "wmr").is_dir():
+            return root
+    return None
+
+
 def _studies():
-    """The study registry of ``analysis/`` (the CLI is the one place where wmr reaches into it)."""
-    try:
-        import analysis
-    except ModuleNotFoundError as err:
-        if err.name == "analysis":
-            raise UsageError("the studies (analysis/) are not available in this installation"
-                             ) from None  # fmt: skip
-        raise
+    """The study registry of ``analysis/`` (the CLI is the one place where wmr reaches into it).
+
+    The studies are the repository's, not part of the installed package (a top-level package
+    named ``analysis`` would clash with any other project's): they are found in the checkout
+    (:func:`_checkout`); outside one this is exit 2 with one line."""
+    root = _checkout()
+    if root is None:
+        raise UsageError("the studies (analysis/) live in the wmr repository: run this command "
+                         "from a checkout of it (git clone, then make reproduce)")  # fmt: skip
+    if str(root) not in sys.path:
+        sys.path.insert(0, str(root))
+    import analysis
+
+    found = Path(analysis.__file__).resolve().parent
+    if found != root / "analysis":
+        raise UsageError(f"another package named 'analysis' ({found}) shadows the studies of "
+                         f"{root}")  # fmt: skip
     return analysis
 
 
@@ -300,7 +322,8 @@ def cmd_sweep(args) -> int:
               f"{len(spec.seeds)} seeds) into {args.out}", flush=True)  # fmt: skip
         manifest = sweep.run_sweep(spec, args.out, workers=args.workers,
                                    scheduler=args.scheduler, batch_seconds=args.batch_seconds,
-                                   flush_seconds=args.flush_seconds)  # fmt: skip
+                                   flush_seconds=args.flush_seconds,
+                                   retry_errors=args.retry_errors)  # fmt: skip
     except sweep.SweepError as err:
         raise UsageError(str(err)) from None
     rate = manifest["runs_per_s"]
@@ -315,6 +338,28 @@ def cmd_settings(args) -> int:
     from wmr.settings_reference import markdown
 
     text = markdown()
+    if args.out is None:
+        print(text, end="")
+    else:
+        atomic_write_text(args.out, text)
+        print(f"wrote {args.out}")
+    return 0
+
+
+def cmd_identify(args) -> int:
+    from wmr import identify
+    from wmr.io import atomic_write_text
+
+    if args.out is not None and Path(args.out).is_dir():
+        raise UsageError(f"--out {args.out!r}: is a directory")
+    options = {k: v for k, v in (("max_delay", args.max_delay), ("segment", args.segment))
+               if v is not None}  # fmt: skip
+    try:
+        found = identify.identify(identify.read_log(args.log), **options)
+    except identify.LogError as err:
+        raise UsageError(str(err)) from None
+    print(identify.report(found))
+    text = identify.to_toml(found)
     if args.out is None:
         print(text, end="")
     else:
@@ -387,6 +432,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="work per task, in seconds (default 2)")
     sw.add_argument("--flush-seconds", type=_positive_float, default=30.0,
                     help="write completed rows at least this often (default 30)")
+    sw.add_argument("--retry-errors", action="store_true",
+                    help="run again the jobs whose stored row is an error (the new rows "
+                         "supersede them)")  # fmt: skip
     _plugin_option(sw)
     sw.set_defaults(func=cmd_sweep)
 
@@ -403,6 +451,16 @@ def build_parser() -> argparse.ArgumentParser:
                             "pair (per-run and set-up cost of each controller)")  # fmt: skip
     bench.set_defaults(func=cmd_bench)
 
+    idf = sub.add_parser("identify", help="fit the [plant] of DESIGN §3.3 to a robot's log "
+                         "(commands and measured poses; wmr run's trajectory CSV)")  # fmt: skip
+    idf.add_argument("log", help="CSV with t, v, w, x_meas, y_meas, theta_meas (dv, dw optional)")
+    idf.add_argument("--out", default=None, help="write the [plant] table here (default: print)")
+    idf.add_argument("--max-delay", type=_nonnegative_int, default=None,
+                     help="largest delay searched, in steps (default 10)")  # fmt: skip
+    idf.add_argument("--segment", type=_positive_float, default=None,
+                     help="multiple-shooting segment length [s] (default 10)")  # fmt: skip
+    idf.set_defaults(func=cmd_identify)
+
     cache = sub.add_parser("cache", help="where wmr's compiled kernels are cached (--prune: "
                            "remove those of earlier versions of the source)")  # fmt: skip
     cache.add_argument("--prune", action="store_true",
@@ -415,6 +473,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``wmr`` command; returns the exit code."""
     import matplotlib
 
+    from wmr.engine.faults import RetriesExhausted
+
     matplotlib.use("Agg")  # the command line writes figures to files; no display is needed
     try:
         args = build_parser().parse_args(argv)
@@ -425,6 +485,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("error: interrupted", file=sys.stderr)
         return 130
+    except RetriesExhausted as err:  # a transient failure that persisted: what finished is kept
+        print(f"error: {err}", file=sys.stderr)
+        return 1
     except Exception as err:  # noqa: BLE001 - the contract: one line, exit 1
         print(f"error: unexpected failure: {type(err).__name__}: {err}", file=sys.stderr)
         if os.environ.get("WMR_DEBUG"):

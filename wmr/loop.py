@@ -73,6 +73,7 @@ __all__ = [
     "kernel",
     "python_step",
     "plant_step",
+    "plant_half",
     "law_digest",
     "Logs",
     "run",
@@ -181,7 +182,7 @@ def _advance_template(
     q, q_hat, ref, noise, use_ekf, Pq, Qp, Rp,
     disturbance, v_max, w_max, bound,
     plant_table, plant_at, plant_ints, plant_vel, plant_buffer,
-    acc, t_tail, status, q_log, qhat_log, u_log, s_log, vel_log, scratch=None,
+    acc, t_tail, status, q_log, qhat_log, u_log, s_log, vel_log, z_log, scratch=None,
 ):  # fmt: skip
     """Steps ``k = k0 .. k1-1`` of the loop (DESIGN §3.1, §3.3), each in its one order: sense ->
     law -> saturate -> delay -> disturb -> plant -> pose predict -> score.  Returns True when the
@@ -236,6 +237,7 @@ def _advance_template(
             if probe.after_law is not None:  # noqa: F821
                 probe.after_law(k, p, s, theta, P, q_hat, u)  # noqa: F821
         if KEEP:  # noqa: F821
+            z_log[k, :] = z
             qhat_log[k, :] = q_hat
             u_log[k, :] = u
             s_log[k, :] = s[: s_log.shape[1]]
@@ -389,10 +391,29 @@ def plant_step(run: Prepared, keep: bool = False):
                  pyplant=run.pyplant)[0]  # fmt: skip
 
 
+_HALVES: dict = {}
+
+
+def plant_half(plant_kind: int = PLANT_TABLE):
+    """The plant half (:func:`_plant_template`) jitted for a compiled plant kind (``PLANT_IDEAL``
+    or ``PLANT_TABLE``) without logging: ``f(k, dt, integrator, u, ua, q, disturbance,
+    plant_arrays, vel_log)`` (``vel_log`` is not written: any (0, 2) array), callable from Python
+    and inlined into jitted callers -- ``wmr.identify`` replays a log's commands through it, so
+    the order delay -> disturbance -> robot is written once, here."""
+    if plant_kind not in (PLANT_IDEAL, PLANT_TABLE):
+        raise ValueError("a Python-level plant has no compiled plant half (use plant_step)")
+    if plant_kind not in _HALVES:
+        name = {PLANT_IDEAL: "_plant_half_ideal", PLANT_TABLE: "_plant_half_table"}[plant_kind]
+        glb = {"PLANT": int(plant_kind), "KEEP": False, "pyplant": None}
+        _HALVES[plant_kind] = njit(inline="always")(_copy(_plant_template, name, glb))
+    return _HALVES[plant_kind]
+
+
 @dataclass
 class Logs:
     """Per-step signals of a run (``keep_trajectory``): ``q`` and ``ref`` have ``n + 1`` rows,
-    ``q_hat``, ``u`` and ``state`` ``n`` rows (``state``: the controller's logged entries)."""
+    ``q_hat``, ``u``, ``state`` and ``z`` ``n`` rows (``state``: the controller's logged entries;
+    ``z``: the measured pose, true pose plus noise, the estimator's input)."""
 
     q: np.ndarray
     ref: np.ndarray
@@ -400,6 +421,7 @@ class Logs:
     u: np.ndarray
     state: np.ndarray
     vel: np.ndarray  # the true robot's actual (v, w) at t_k (a non-ideal plant only)
+    z: np.ndarray  # the measured pose at t_k
 
     @classmethod
     def empty(cls, n: int, n_state: int, keep: bool) -> Logs:
@@ -408,7 +430,8 @@ class Logs:
         return cls(q=np.full((rows, 3), np.nan), ref=np.empty((rows, 5)),
                    q_hat=np.full((per_step, 3), np.nan), u=np.full((per_step, 2), np.nan),
                    state=np.full((per_step, n_state), np.nan),
-                   vel=np.full((per_step, 2), np.nan))  # fmt: skip
+                   vel=np.full((per_step, 2), np.nan),
+                   z=np.full((per_step, 3), np.nan))  # fmt: skip
 
 
 #: The logs a run without a trajectory hands the kernel (never written: ``KEEP`` is False).
@@ -463,7 +486,7 @@ def run(run: Prepared, logs: Logs | None, probe=None, driver: str | None = None)
             sc.limits.v_max, sc.limits.w_max, sc.divergence_bound,
             run.plant_table, run.plant_at, run.plant_ints, run.plant_vel, run.plant_buffer,
             run.acc, metrics.TRANSIENT, run.status, logs.q, logs.q_hat, logs.u, logs.state,
-            logs.vel,
+            logs.vel, logs.z,
         )  # fmt: skip
         if keep:
             logs.ref[k0 + 1 : k1 + 1] = ref[1:]

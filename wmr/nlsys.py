@@ -205,7 +205,7 @@ def update_function(run: loop.Prepared, layout: Layout):
                           u[0:3].reshape(1, 3), run.use_ekf, Pq, run.Qp, run.Rp,
                           run.disturbance, v_max, w_max, bound, run.plant_table, run.plant_at,
                           run.plant_ints, run.plant_vel, run.plant_buffer, acc,
-                          metrics.TRANSIENT, status, *(none,) * 5, scratch)  # fmt: skip
+                          metrics.TRANSIENT, status, *(none,) * 6, scratch)  # fmt: skip
         if stopped and status[1] == 1:
             x[:] = np.nan  # the kernel stops the run here
         return x

@@ -1,4 +1,5 @@
-"""The true robot (DESIGN §3.3): input gains and coupling, actuator lag, delay, slip, dynamics.
+"""The true robot (DESIGN §3.3): input gains and coupling, actuator lag, delay, slip, and the
+lagged velocity loop.
 
 Every controller and the pose EKF keep their *nominal* model (eq. 1, unit gains, no lag), as a
 controller on a real robot would; this module is the one place that knows how the robot really
@@ -17,26 +18,34 @@ moves.  One step, after the command ``u_k`` is saturated (``wmr.loop``):
 
    - kinematic, ``actuator_tau = 0``: ``(v, w) = a``;
    - kinematic, ``actuator_tau > 0``: ``v' = (a_v - v) / tau``, ``w' = (a_w - w) / tau``;
-   - dynamic: ``mass v' = nominal_mass bw_v (a_v - v) - f_v v`` and
+   - lagged-velocity: ``mass v' = nominal_mass bw_v (a_v - v) - f_v v`` and
      ``inertia w' = nominal_inertia bw_w (a_w - w) - f_w w`` (an inner proportional velocity loop
-     tuned with the nominal mass and inertia, ``bw`` its bandwidth, ``f`` viscous friction);
+     tuned with the nominal mass and inertia, ``bw`` its bandwidth, ``f`` viscous friction: a
+     first-order lag whose time constant follows the mass);
    - pose: ``x' = v cos(theta) - v_s sin(theta)``, ``y' = v sin(theta) + v_s cos(theta)``,
-     ``theta' = w`` with the lateral slip velocity ``v_s = slip v w`` (robot frame, left +);
-   - with lag or dynamics the robot starts at rest (``v = w = 0`` at ``t = 0``).
+     ``theta' = w`` with the lateral skid velocity ``v_s = -slip v w`` (robot frame, left +):
+     ``slip > 0`` skids outward of the turn (to the right in a left turn), as a centrifugal skid
+     does;
+   - with a lag or the velocity loop the robot starts at rest (``v = w = 0`` at ``t = 0``).
 
 ``[[plant.change]]`` events switch parameters mid-run: from the first step with ``t_k >= at``
 the row of the parameter table for that event is in force (:func:`segment`).
 
-Integration.  The ideal plant (unit gains, no coupling, lag, delay, slip or change, kinematic)
-takes the scenario's ``integrator`` path of ``wmr.kinematics.step``, exactly as before.
+Integration.  The ideal plant (``wmr.plantspec.Plant.ideal``: every field at its ideal value,
+no change) takes the scenario's ``integrator`` path of ``wmr.kinematics.step``, exactly as before.
 Otherwise: without actuator dynamics the velocities are constant over the step and the motion
 is integrated exactly (:func:`crab_arc`: the arc of a body moving with constant body-frame
-velocity ``(v, v_s)`` and turn rate ``w``).  With actuator dynamics (lag, or the dynamic model)
+velocity ``(v, v_s)`` and turn rate ``w``).  With actuator dynamics (lag, or the lagged-velocity
+model)
 each channel is first order with the command held, so the velocities and the heading are exact
 and only the position needs quadrature (:func:`lagged_step`: 3-point Gauss-Legendre, order 6),
 in ``n_sub`` substeps chosen per parameter row so that a substep is at most
 :data:`SUBSTEP_FRACTION` of the fastest actuator time constant.  Tests check the order and that
 a run's RMSE moves by < 1e-6 (relative) when the plant integration is refined 10x.
+
+The parameter table's columns (:data:`PARAMS`) are those the specification declares
+(``wmr.plantspec.COLUMNS``, from its fields' metadata) plus ``substeps``; the physics below reads
+them by name.
 """
 
 from __future__ import annotations
@@ -47,10 +56,12 @@ import numpy as np
 
 from wmr._jit import njit
 from wmr.kinematics import sinc_and_derivative
+from wmr.plantspec import COLUMNS
 
 __all__ = [
     "KINEMATIC",
-    "DYNAMIC",
+    "LAGGED_VELOCITY",
+    "MODEL_CODES",
     "PARAMS",
     "N_PARAMS",
     "SUBSTEP_FRACTION",
@@ -66,13 +77,17 @@ __all__ = [
     "lagged_step",
 ]
 
-KINEMATIC, DYNAMIC = 0, 1
-#: Columns of a row of the plant's parameter table (one row per segment between changes).
-PARAMS = ("v_gain", "w_gain", "v_from_w", "w_from_v", "actuator_tau", "slip", "mass", "inertia",
-          "friction_v", "friction_w", "nominal_mass", "nominal_inertia", "bandwidth_v",
-          "bandwidth_w", "substeps")  # fmt: skip
-(V_GAIN, W_GAIN, V_FROM_W, W_FROM_V, TAU, SLIP, MASS, INERTIA, F_V, F_W, M_NOM, I_NOM, BW_V, BW_W,
- N_SUB) = range(len(PARAMS))  # fmt: skip
+KINEMATIC, LAGGED_VELOCITY = 0, 1
+#: The compiled models: ``[plant] model`` -> the code in ``ints[I_MODEL]``.
+MODEL_CODES = {"kinematic": KINEMATIC, "lagged-velocity": LAGGED_VELOCITY}
+#: Columns of a row of the plant's parameter table (one row per segment between changes): the
+#: specification's (``wmr.plantspec.COLUMNS``), then the substeps of the lagged integration.
+PARAMS = (*COLUMNS, "substeps")
+V_GAIN, W_GAIN, V_FROM_W, W_FROM_V, TAU, SLIP = (PARAMS.index(c) for c in (
+    "v_gain", "w_gain", "v_from_w", "w_from_v", "actuator_tau", "slip"))  # fmt: skip
+MASS, INERTIA, F_V, F_W, M_NOM, I_NOM, BW_V, BW_W, N_SUB = (PARAMS.index(c) for c in (
+    "mass", "inertia", "friction_v", "friction_w", "nominal_mass", "nominal_inertia",
+    "bandwidth_v", "bandwidth_w", "substeps"))  # fmt: skip
 N_PARAMS = len(PARAMS)
 #: A substep of the lagged plant is at most this fraction of the fastest actuator time constant.
 SUBSTEP_FRACTION = 0.5
@@ -84,10 +99,11 @@ I_IDEAL, I_MODEL, I_DELAY, I_SEG, I_HEAD = range(5)
 def time_constants(row, model: int) -> tuple[float, float]:
     """The actuator time constants ``(tau_v, tau_w)`` [s] of a parameter row (inf: none).
 
-    Kinematic: ``actuator_tau`` for both (0: none, returned as inf).  Dynamic: the inner loop
-    ``mass v' = m_hat bw (a - v) - f v`` has ``tau = mass / (m_hat bw + f)`` (and likewise for w).
+    Kinematic: ``actuator_tau`` for both (0: none, returned as inf).  Lagged-velocity: the inner
+    loop ``mass v' = m_hat bw (a - v) - f v`` has ``tau = mass / (m_hat bw + f)`` (and likewise
+    for w).
     """
-    if model == DYNAMIC:
+    if model == LAGGED_VELOCITY:
         return (row[MASS] / (row[M_NOM] * row[BW_V] + row[F_V]),
                 row[INERTIA] / (row[I_NOM] * row[BW_W] + row[F_W]))  # fmt: skip
     tau = row[TAU]
@@ -143,11 +159,11 @@ def first_order(x0, target, tau, t):
 def channels(row, model, a_v, a_w):
     """``(target_v, tau_v, target_w, tau_w)`` of the two first-order actuator channels.
 
-    Kinematic lag: the targets are the mapped command and ``tau = actuator_tau``.  Dynamic:
-    ``mass v' = m_hat bw (a - v) - f v`` is first order with ``tau = mass / (m_hat bw + f)`` and
-    target ``m_hat bw a / (m_hat bw + f)`` (likewise for ``w``).
+    Kinematic lag: the targets are the mapped command and ``tau = actuator_tau``.
+    Lagged-velocity: ``mass v' = m_hat bw (a - v) - f v`` is first order with
+    ``tau = mass / (m_hat bw + f)`` and target ``m_hat bw a / (m_hat bw + f)`` (likewise for ``w``).
     """
-    if model == DYNAMIC:
+    if model == LAGGED_VELOCITY:
         gv = row[M_NOM] * row[BW_V]
         gw = row[I_NOM] * row[BW_W]
         return (gv * a_v / (gv + row[F_V]), row[MASS] / (gv + row[F_V]),
@@ -167,7 +183,7 @@ def lagged_step(row, model, q, vel, a_v, a_w, dt, n_sub):
 
     Per substep of length ``h`` the velocities and the heading are exact (:func:`first_order`:
     ``theta(t) = theta_0 + integral of w``); the position increments ``integral of (v cos theta -
-    v_s sin theta, v sin theta + v_s cos theta)`` with ``v_s = slip v w`` are taken by 3-point
+    v_s sin theta, v sin theta + v_s cos theta)`` with ``v_s = -slip v w`` are taken by 3-point
     Gauss-Legendre quadrature, exact for polynomials of degree 5: the local error is O(h^7), the
     method is of order 6 (a test checks it).
     """
@@ -185,7 +201,7 @@ def lagged_step(row, model, q, vel, a_v, a_w, dt, n_sub):
             v, _ = first_order(v0, tv_target, tau_v, tj)
             w, dth = first_order(w0, tw_target, tau_w, tj)
             th = th0 + dth
-            vs = slip * v * w
+            vs = -slip * v * w  # outward of the turn for slip > 0 (DESIGN §3.3)
             c = math.cos(th)
             s = math.sin(th)
             fx += _GL_WEIGHTS[j] * (v * c - vs * s)
@@ -227,12 +243,12 @@ def apply(k, dt, ua, q, table, table_at, ints, vel):
     a_v = row[V_GAIN] * ua[0] + row[V_FROM_W] * ua[1]
     a_w = row[W_GAIN] * ua[1] + row[W_FROM_V] * ua[0]
     model = ints[I_MODEL]
-    if model == DYNAMIC or row[TAU] > 0.0:
+    if model == LAGGED_VELOCITY or row[TAU] > 0.0:
         lagged_step(row, model, q, vel, a_v, a_w, dt, int(row[N_SUB]))
     else:
         vel[0] = a_v
         vel[1] = a_w
-        crab_arc(q, a_v, row[SLIP] * a_v * a_w, a_w, dt)
+        crab_arc(q, a_v, -row[SLIP] * a_v * a_w, a_w, dt)  # v_s = -slip v w: outward
 
 
 def arrays(spec, dt: float):
@@ -240,14 +256,18 @@ def arrays(spec, dt: float):
     ``(table (n_seg, N_PARAMS), table_at (n_seg,), ints (5,), vel (2,), buffer (max(d, 1), 2))``.
 
     Row 0 holds the parameters at ``t = 0``; row ``j`` those from the ``j``-th change on (each
-    change applies its keys on top of the row before it).
+    change applies its keys on top of the row before it); the last column, ``substeps``, is
+    :func:`substeps` of the row.
     """
-    model = DYNAMIC if spec.model == "dynamic" else KINEMATIC
+    if spec.model not in MODEL_CODES:
+        raise ValueError(f"model {spec.model!r} is not a compiled plant (compiled: "
+                         f"{', '.join(MODEL_CODES)})")  # fmt: skip
+    model = MODEL_CODES[spec.model]
     rows, at = [spec.row()], [0.0]
     for change in spec.changes:
         rows.append(spec.row(rows[-1], change.values))
         at.append(change.at)
-    table = np.array(rows, dtype=float)
+    table = np.array([[*r, 0.0] for r in rows], dtype=float)
     for r in table:
         r[N_SUB] = substeps(r, model, dt)
     ints = np.array([int(spec.ideal), model, spec.delay_steps, 0, 0], dtype=np.int64)

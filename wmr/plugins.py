@@ -15,8 +15,9 @@ pickled setting of the plugin resolves on a worker, and an edited file is a new 
 replace the old ones).  Workers of a Dask engine get the plugins of the driver through
 :class:`WorkerLoader`: the files' contents travel with it and are written into the worker's own
 folder and imported there, so a worker whose working folder and ``sys.path`` do not contain the
-file runs it too (``wmr.study``).  A compiled plugin's kernel is cached under a digest of its
-source (``wmr.loop.law_digest``): an edit takes effect at the next run.
+file runs it too; the scheduler gets them the same way (``wmr.engine.plugins_dask``).  A
+compiled plugin's kernel is cached under a digest of its source (``wmr.loop.law_digest``): an
+edit takes effect at the next run.
 
 Errors are :class:`PluginError` (exit 2 at the command line, one line naming the plugin): a
 plugin that cannot be imported, has no ``CONTROLLERS``, a row that breaks the contract, or a

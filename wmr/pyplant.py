@@ -79,8 +79,17 @@ class TablePlant:
         vel[:] = self.vel
 
 
+def _mujoco(scenario) -> PyPlant:
+    """``model = "mujoco"`` (DESIGN §3.7): the MuJoCo robot of ``[plant.mujoco]`` with the
+    scenario's ``[[plant.change]]`` events (mass, centre-of-mass offset, friction)."""
+    from wmr.mujoco_robot import MujocoRobot
+
+    spec = scenario.plant
+    return MujocoRobot(spec.model_table, scenario.dt, [(c.at, c.values) for c in spec.changes])
+
+
 #: Plant models driven from Python: ``[plant] model`` -> ``factory(scenario) -> PyPlant``.
-MODELS: dict[str, Callable] = {}
+MODELS: dict[str, Callable] = {"mujoco": _mujoco}
 
 
 def factory(spec) -> Callable | None:

@@ -16,12 +16,17 @@ import numpy as np
 
 from wmr.controllers.pid import GAIN_NAMES, J_NAMES
 
-__all__ = ["RunResult", "Row"]
+__all__ = ["RunResult", "Row", "STEP_LOG"]
 
-#: Signals every run with a trajectory has besides its controller's: the applied input and the
-#: pose estimate the controller acted on.
+#: Signals every run with a trajectory has besides its controller's: the applied input, the
+#: pose estimate the controller acted on, the measured pose and the disturbance in force.
 _COMMON = {"v": ("u", 0), "w": ("u", 1),
-           "x_hat": ("q_hat", 0), "y_hat": ("q_hat", 1), "theta_hat": ("q_hat", 2)}  # fmt: skip
+           "x_hat": ("q_hat", 0), "y_hat": ("q_hat", 1), "theta_hat": ("q_hat", 2),
+           "x_meas": ("z", 0), "y_meas": ("z", 1), "theta_meas": ("z", 2),
+           "dv": ("disturbance", 0), "dw": ("disturbance", 1)}  # fmt: skip
+#: Per-step columns of the trajectory CSV after the command: the measured pose and the
+#: disturbance in force at t_k (what a robot's log holds; ``wmr identify``).
+STEP_LOG = ("x_meas", "y_meas", "theta_meas", "dv", "dw")
 
 
 def _num(x):
@@ -63,6 +68,11 @@ class RunResult:
     plant_velocity
         With a trajectory and a non-ideal plant: the true robot's actual ``(v, w)`` at each
         ``t_k`` before its step, shape (n, 2) (``None`` otherwise).
+    z, disturbance
+        With a trajectory: the measured pose ``z_k = q_k + n_k`` (n, 3) [m, m, rad], what the
+        estimator received, and the disturbance ``(dv, dw)`` in force at each ``t_k`` (n, 2)
+        [m/s, rad/s], added to the saturated command before the plant (a robot's log: what
+        ``wmr identify`` reads).
     """
 
     scenario: str
@@ -89,6 +99,8 @@ class RunResult:
     u: np.ndarray | None = None
     state: np.ndarray | None = None
     plant_velocity: np.ndarray | None = None
+    z: np.ndarray | None = None
+    disturbance: np.ndarray | None = None
 
     def summary(self) -> dict:
         """The JSON record of DESIGN §3.2 (``null`` for the RMSE of a diverged run)."""
@@ -123,7 +135,7 @@ class RunResult:
     def csv_header(self) -> tuple[str, ...]:
         """Columns of :meth:`to_csv`."""
         return ("t", "x", "y", "theta", "x_r", "y_r", "theta_r", "v_r", "w_r",
-                "x_hat", "y_hat", "theta_hat", "v", "w", *self.state_names)  # fmt: skip
+                "x_hat", "y_hat", "theta_hat", "v", "w", *STEP_LOG, *self.state_names)  # fmt: skip
 
     def to_csv(self, path, rows_per_block: int = 2_000) -> None:
         """Write the trajectory as CSV (:attr:`csv_header`; one row per instant ``t_0 .. t_n``,
@@ -140,12 +152,13 @@ class RunResult:
                 k1 = min(k0 + rows_per_block, len(self.t))
                 m = max(min(k1, n), k0)  # rows k0 .. m-1 have a step after them
                 instant = np.column_stack((self.t[k0:k1], self.q[k0:k1], self.ref[k0:k1]))
-                step = np.column_stack((self.q_hat[k0:m], self.u[k0:m], self.state[k0:m]))
+                step = np.column_stack((self.q_hat[k0:m], self.u[k0:m], self.z[k0:m],
+                                        self.disturbance[k0:m], self.state[k0:m]))  # fmt: skip
                 lines = [",".join(map(repr, row)) for row in instant.tolist()]
                 for i, row in enumerate(step.tolist()):
                     lines[i] += "," + ",".join(map(repr, row))
                 for i in range(m - k0, k1 - k0):  # the last instant has no step after it
-                    lines[i] += "," * (5 + len(self.state_names))
+                    lines[i] += "," * (5 + len(STEP_LOG) + len(self.state_names))
                 fh.write("\n".join(lines) + "\n")
 
     def _block(self, names: tuple[str, ...], what: str) -> np.ndarray:

@@ -27,7 +27,7 @@ from wmr import controllers, metrics, plant
 from wmr._shared import SHARED
 from wmr.kinematics import integrator_code
 from wmr.references import ReferenceSampler
-from wmr.scenario import Scenario
+from wmr.scenario import Plant, Scenario
 
 __all__ = [
     "CHUNK",
@@ -84,18 +84,24 @@ class _Fixed:
     quiet: bool  # the noise cannot overflow (finite std < 1e300): no np.errstate needed
 
 
-def _fixed(sc: Scenario) -> _Fixed:
+def _fixed(sc: Scenario, python_robot: bool) -> _Fixed:
+    """The shared :class:`_Fixed` of ``sc``; with a ``python_robot`` (``wmr.pyplant``) the
+    compiled plant's arrays are those of the ideal plant with the scenario's delay line (the loop
+    keeps only the delay line of them), unless the scenario's model is itself a compiled one."""
+
     def build():
         Qp, Rp = sc.estimator.matrices(sc.noise)
         dist = np.array([(x.start, x.stop, *x.velocity) for x in sc.disturbances],
                         dtype=float).reshape(-1, 4)  # fmt: skip
         std = np.array(sc.noise.pose_std)
         quiet = bool(np.all(np.abs(std) < 1e300))  # a normal deviate is far below 1e8
+        compiled = (sc.plant if not python_robot or sc.plant.model in plant.MODEL_CODES
+                    else Plant(delay_steps=sc.plant.delay_steps))  # fmt: skip
         return _Fixed(Qp, Rp, std, dist, integrator_code(sc.integrator),
-                      plant.arrays(sc.plant, sc.dt), quiet)  # fmt: skip
+                      plant.arrays(compiled, sc.dt), quiet)  # fmt: skip
 
     parts = (sc.estimator, sc.noise, sc.disturbances, sc.plant)
-    return SHARED.get("fixed", parts, (sc.dt, sc.integrator), build)
+    return SHARED.get("fixed", parts, (sc.dt, sc.integrator, python_robot), build)
 
 
 def seed_sequences(seed: int | np.random.SeedSequence):
@@ -258,9 +264,9 @@ def prepare(scenario: Scenario, controller: str, seed: int | None = None, settin
     else:
         noise_ss, init_ss = np.random.SeedSequence(seed, spawn_key=(0,)), None
     p, s, theta, P = ctrl.pack(settings, scenario, _generator(init_ss) if draws else None)
-    fx = _fixed(scenario)
-    table, at, ints, vel, buffer = fx.plant
     make = robot if robot is not None else pyplant.factory(scenario.plant)
+    fx = _fixed(scenario, make is not None)
+    table, at, ints, vel, buffer = fx.plant
     robot = make(scenario) if make is not None else None
     if robot is not None:
         robot.reset(np.array(scenario.initial_pose, dtype=float))

@@ -10,7 +10,6 @@ and the offending value.  Unknown keys are errors.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import tomllib
 from collections.abc import Mapping
@@ -21,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from wmr import controllers
+from wmr import controllers, plantspec
 from wmr._settings import (
     FrozenMap,
     InputError,
@@ -33,6 +32,7 @@ from wmr._settings import (
     positive,
 )
 from wmr.kinematics import INTEGRATORS
+from wmr.plantspec import PLANT_CHANGEABLE, LaggedVelocity, Plant, PlantChange
 from wmr.references import KINDS
 
 __all__ = [
@@ -43,7 +43,7 @@ __all__ = [
     "Limits",
     "Estimator",
     "Plant",
-    "PlantDynamic",
+    "LaggedVelocity",
     "PlantChange",
     "PLANT_CHANGEABLE",
     "Scenario",
@@ -191,218 +191,6 @@ class Estimator:
         return Qp, Rp
 
 
-#: Keys a ``[[plant.change]]`` may set (``model``, ``delay_steps``, ``nominal_*`` and
-#: ``bandwidth`` describe the robot's build and its inner loop: they cannot change mid-run).
-PLANT_CHANGEABLE = ("v_gain", "w_gain", "v_from_w", "w_from_v", "slip", "actuator_tau", "mass",
-                    "inertia", "friction")  # fmt: skip
-_DYNAMIC_KEYS = ("mass", "inertia", "friction")
-
-
-@dataclass(frozen=True)
-class PlantDynamic:
-    """The torque-driven robot of ``model = "dynamic"`` (``[plant.dynamic]``, DESIGN §3.3).
-
-    ``mass v' = nominal_mass bw_v (a_v - v) - f_v v``, ``inertia w' = nominal_inertia bw_w (a_w -
-    w) - f_w w``: an inner proportional velocity loop tuned with the nominal mass and inertia.
-
-    Attributes
-    ----------
-    mass : float [kg]
-        The true mass (> 0).
-    inertia : float [kg m^2]
-        The true moment of inertia about the vertical axis (> 0).
-    friction : tuple of float [N s/m, N m s]
-        Viscous friction ``(f_v, f_w)`` (>= 0).
-    nominal_mass : float [kg]
-        The mass the inner velocity loop is tuned for (> 0).
-    nominal_inertia : float [kg m^2]
-        The inertia the inner velocity loop is tuned for (> 0).
-    bandwidth : tuple of float [1/s]
-        Bandwidths ``(bw_v, bw_w)`` of the inner velocity loop (> 0).
-    """
-
-    mass: float = 10.0
-    inertia: float = 0.5
-    friction: tuple[float, ...] = (0.0, 0.0)
-    nominal_mass: float = 10.0
-    nominal_inertia: float = 0.5
-    bandwidth: tuple[float, ...] = (20.0, 20.0)
-
-    def __post_init__(self):
-        for name in ("mass", "inertia", "nominal_mass", "nominal_inertia"):
-            positive(name, getattr(self, name))
-        for x in self.friction:
-            nonnegative("friction", x)
-        for x in self.bandwidth:
-            positive("bandwidth", x)
-
-
-@dataclass(frozen=True)
-class PlantChange:
-    """A ``[[plant.change]]``: from the first step with ``t_k >= at`` [s] the keys of ``values``
-    take their new values (on top of the parameters in force before)."""
-
-    at: float
-    values: Mapping[str, Any]
-
-    def __post_init__(self):
-        object.__setattr__(self, "values", FrozenMap(self.values))
-
-
-@dataclass(frozen=True)
-class Plant:
-    """The true robot (``[plant]``, DESIGN §3.3; the physics is in ``wmr.plant``).  Controllers
-    and the pose EKF keep the nominal model; only the plant reads this.
-
-    Attributes
-    ----------
-    model : str [-]
-        ``"kinematic"`` (default: the commanded velocities act directly, possibly lagged) or
-        ``"dynamic"`` (torque-driven with an inner velocity loop; needs ``[plant.dynamic]``).
-    v_gain : float [-]
-        Applied ``v = v_gain v_cmd + v_from_w w_cmd`` (a wheel-radius error scales both gains).
-    w_gain : float [-]
-        Applied ``w = w_gain w_cmd + w_from_v v_cmd`` (a radius or axle-length error).
-    v_from_w : float [m/rad]
-        Cross-coupling; unequal wheels of radii ``r (1 +- eps)`` and half-axle ``b`` give
-        ``v_from_w = eps b``.
-    w_from_v : float [rad/m]
-        Cross-coupling; unequal wheels give ``w_from_v = eps / b``.
-    actuator_tau : float [s]
-        First-order lag of the actual ``(v, w)`` behind the mapped command (>= 0; kinematic
-        model only; 0: none).  With a lag the robot starts at rest.
-    delay_steps : int [-]
-        Whole-sample input delay ``d >= 0``: the command computed at step ``k`` is applied at
-        step ``k + d`` (zero before the first one arrives).
-    slip : float [s]
-        Lateral slip: side velocity ``v_s = slip v w`` in the robot frame, left positive (>= 0).
-    """
-
-    model: str = "kinematic"
-    v_gain: float = 1.0
-    w_gain: float = 1.0
-    v_from_w: float = 0.0
-    w_from_v: float = 0.0
-    actuator_tau: float = 0.0
-    delay_steps: int = 0
-    slip: float = 0.0
-    dynamic: PlantDynamic | None = field(default=None, metadata={"toml": False})
-    changes: tuple[PlantChange, ...] = field(default=(), metadata={"toml": False})
-
-    def __post_init__(self):
-        check(self.model in ("kinematic", "dynamic"), "model", self.model,
-              'must be "kinematic" or "dynamic"')  # fmt: skip
-        nonnegative("actuator_tau", self.actuator_tau)
-        nonnegative("slip", self.slip)
-        check(self.delay_steps >= 0, "delay_steps", self.delay_steps, "must be an integer >= 0")
-        check(self.model == "kinematic" or self.actuator_tau == 0.0, "actuator_tau",
-              self.actuator_tau, 'is for model = "kinematic" only (the dynamic model has its '
-              "own inner loop)")  # fmt: skip
-
-    @property
-    def ideal(self) -> bool:
-        """The paper's plant: kinematic, unit gains, no coupling, lag, delay, slip or change."""
-        return (self.model == "kinematic" and self.v_gain == 1.0 and self.w_gain == 1.0
-                and self.v_from_w == 0.0 and self.w_from_v == 0.0 and self.actuator_tau == 0.0
-                and self.delay_steps == 0 and self.slip == 0.0 and not self.changes)  # fmt: skip
-
-    def row(self, previous: list | None = None, values: Mapping | None = None) -> list[float]:
-        """A row of ``wmr.plant.PARAMS`` (substeps left 0): these parameters, or ``previous``
-        with a change's ``values`` applied."""
-        from wmr.plant import PARAMS
-
-        if previous is None:
-            d = self.dynamic or PlantDynamic()
-            current = {"v_gain": self.v_gain, "w_gain": self.w_gain, "v_from_w": self.v_from_w,
-                       "w_from_v": self.w_from_v, "actuator_tau": self.actuator_tau,
-                       "slip": self.slip, "mass": d.mass, "inertia": d.inertia,
-                       "friction_v": d.friction[0], "friction_w": d.friction[1],
-                       "nominal_mass": d.nominal_mass, "nominal_inertia": d.nominal_inertia,
-                       "bandwidth_v": d.bandwidth[0], "bandwidth_w": d.bandwidth[1],
-                       "substeps": 0.0}  # fmt: skip
-        else:
-            current = dict(zip(PARAMS, previous, strict=True))
-        for key, value in (values or {}).items():
-            if key == "friction":
-                current["friction_v"], current["friction_w"] = value
-            else:
-                current[key] = value
-        return [float(current[k]) for k in PARAMS]
-
-    def to_json(self) -> dict:
-        """The parameters in force at ``t = 0`` and the change schedule (``summary.json``)."""
-        out = {k: getattr(self, k) for k in ("model", "v_gain", "w_gain", "v_from_w", "w_from_v",
-                                             "actuator_tau", "delay_steps", "slip")}  # fmt: skip
-        out["dynamic"] = None if self.dynamic is None else {
-            f.name: (list(v) if isinstance(v := getattr(self.dynamic, f.name), tuple) else v)
-            for f in dataclasses.fields(self.dynamic)}  # fmt: skip
-        out["changes"] = [{"at": c.at, **{k: (list(v) if isinstance(v, tuple) else v)
-                                          for k, v in c.values.items()}}
-                          for c in self.changes]  # fmt: skip
-        return out
-
-    def describe(self) -> str:
-        """One line for table headers and figure titles ("ideal" for the paper's plant)."""
-        if self.ideal:
-            return "ideal plant"
-        parts = [self.model]
-        for k, default in (("v_gain", 1.0), ("w_gain", 1.0), ("v_from_w", 0.0),
-                           ("w_from_v", 0.0), ("actuator_tau", 0.0), ("slip", 0.0)):
-            if getattr(self, k) != default:
-                parts.append(f"{k} {getattr(self, k):g}")
-        if self.delay_steps:
-            parts.append(f"delay {self.delay_steps} steps")
-        if self.dynamic is not None:
-            d = self.dynamic
-            parts.append(f"mass {d.mass:g} (nominal {d.nominal_mass:g})")
-        for c in self.changes:
-            parts.append(f"at {c.at:g} s: " + ", ".join(
-                f"{k} {list(v) if isinstance(v, tuple) else v}" for k, v in c.values.items()))
-        return "plant: " + "; ".join(parts)
-
-
-def _plant(data: Any, duration: float) -> Plant:
-    """``[plant]`` with ``[plant.dynamic]`` and ``[[plant.change]]``, validated (DESIGN §3.3)."""
-    check(isinstance(data, Mapping), "plant", data, "must be a table")
-    base = {k: v for k, v in data.items() if k not in ("dynamic", "change")}
-    plant = from_table(Plant, base, "plant")
-    dyn_table = data.get("dynamic")
-    if plant.model == "dynamic":
-        check(dyn_table is not None, "plant.dynamic", None,
-              'is required with model = "dynamic"')  # fmt: skip
-        dynamic = from_table(PlantDynamic, dyn_table, "plant.dynamic")
-    else:
-        check(dyn_table is None, "plant.dynamic", dyn_table,
-              'is only allowed with model = "dynamic"')  # fmt: skip
-        dynamic, dyn_table = None, {}
-    tables = data.get("change", [])
-    check(isinstance(tables, list), "plant.change", tables,
-          "must be an array of tables ([[plant.change]])")  # fmt: skip
-    changes = []
-    for i, table in enumerate(tables):
-        where = f"plant.change[{i}]"
-        check(isinstance(table, Mapping), where, table, "must be a table")
-        at = number(f"{where}.at", _require(table, "at", f"{where}."))
-        check(0.0 <= at < duration, f"{where}.at", at, f"must be in [0, duration = {duration})")
-        values = {}
-        for key, value in table.items():
-            if key == "at":
-                continue
-            check(key in PLANT_CHANGEABLE, f"{where}.{key}", value,
-                  f"cannot change mid-run (changeable: {', '.join(PLANT_CHANGEABLE)})")
-            if key in _DYNAMIC_KEYS:
-                check(dynamic is not None, f"{where}.{key}", value,
-                      'is a key of the dynamic model (model = "dynamic")')  # fmt: skip
-                checked = from_table(PlantDynamic, {**dyn_table, key: value}, where)
-            else:
-                checked = from_table(Plant, {**base, key: value}, where)
-            values[key] = getattr(checked, key)
-        check(values != {}, where, dict(table), "changes nothing (give at least one key)")
-        changes.append(PlantChange(at, values))
-    changes.sort(key=lambda c: c.at)  # stable: changes at the same time apply in file order
-    return dataclasses.replace(plant, dynamic=dynamic, changes=tuple(changes))
-
-
 @dataclass(frozen=True)
 class Scenario:
     """A validated scenario.  Build it with :func:`load`; vary it with ``dataclasses.replace``.
@@ -545,7 +333,7 @@ def _build(data: Mapping[str, Any], source: str) -> Scenario:
         disturbances.append(d)
     limits = from_table(Limits, data.get("limits", {}), "limits")
     estimator = from_table(Estimator, data.get("estimator", {}), "estimator")
-    plant = _plant(data.get("plant", {}), duration)
+    plant = plantspec.parse(data.get("plant", {}), plantspec.Context(duration, dt, source))
 
     ctrl_tables = data.get("controllers", {})
     check(isinstance(ctrl_tables, Mapping), "controllers", ctrl_tables, "must be a table")

@@ -17,7 +17,7 @@ import math
 import re
 import typing
 
-from wmr import controllers, references
+from wmr import controllers, plantspec, references
 from wmr import scenario as scn
 
 __all__ = ["attribute_docs", "markdown"]
@@ -167,16 +167,22 @@ def markdown() -> str:
         "",
         *_table(scn.Plant, "plant."),
         "",
-        "## `[plant.dynamic]` (with `model = \"dynamic\"` only, and required then)",
-        "",
-        *_table(scn.PlantDynamic, "plant.dynamic."),
-        "",
+    ]
+    for m in plantspec.MODELS.values():
+        if m.table is not None:
+            excluded = ", ".join(f"`{k}`" for k in m.excluded)
+            out += [f"## `[plant.{m.name}]` (with `model = \"{m.name}\"` only, and required then)",
+                    "", f"{m.doc[0].upper()}{m.doc[1:]}."
+                    + (f"  With this model these keys of `[plant]` are errors: {excluded} "
+                       f"({m.why})." if excluded else ""),
+                    "", *_table(m.table, f"plant.{m.name}."), ""]  # fmt: skip
+    out += [
         "## `[[plant.change]]` (zero or more)",
         "",
         "`at` [s] (finite, 0 <= at < duration): from the first step with t_k >= at the other keys "
-        "of the table take their new values.  Changeable: "
-        + ", ".join(f"`{k}`" for k in scn.PLANT_CHANGEABLE) + ", each with the type and rule of "
-        "the same key above.",
+        "of the table take their new values, each with the type and rule of the same key above.  "
+        "Changeable: " + "; ".join(f"with `model = \"{m}\"` " + ", ".join(
+            f"`{k}`" for k in plantspec.changeable(m)) for m in plantspec.MODELS) + ".",
         "",
     ]
     for name, ctrl in controllers.REGISTRY.items():

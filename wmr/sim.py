@@ -87,9 +87,23 @@ def _result(run: loop.Prepared, logs: loop.Logs | None) -> RunResult:
         result.q_hat = logs.q_hat[:steps]
         result.u = logs.u[:steps]
         result.state = logs.state[:steps]
+        result.z = logs.z[:steps]
+        result.disturbance = _disturbance(run, steps)
         if run.plant_kind != loop.PLANT_IDEAL:
             result.plant_velocity = logs.vel[:steps]
     return result
+
+
+def _disturbance(run: loop.Prepared, steps: int) -> np.ndarray:
+    """The ``(dv, dw)`` in force at ``t_0 .. t_{steps-1}``: the sum over the windows with
+    ``start <= t_k < stop``, ``t_k = k dt`` as the loop computes it (``wmr.loop.disturb``)."""
+    t = np.arange(steps) * run.dt
+    out = np.zeros((steps, 2))
+    for start, stop, dv, dw in run.disturbance:
+        on = (start <= t) & (t < stop)
+        out[on, 0] += dv
+        out[on, 1] += dw
+    return out
 
 
 def _cause(run: loop.Prepared) -> str | None:

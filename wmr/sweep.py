@@ -1,4 +1,4 @@
-"""Sweeps (DESIGN §3.5): a spec file, its design, the jobs, and a resumable Parquet store.
+"""Sweeps (DESIGN §3.5): a spec file, its design, its jobs and the summary of its store.
 
 ```toml
 name = "mismatch-vs-mu"
@@ -23,23 +23,26 @@ seed = 0                # design seed
 run: a :class:`SweepError` names the spec file, the key and the value.  One job is (design point,
 scenario, controller, seed); its ``job_id`` is its index in that nested order, so jobs, rows and
 seeds are independent of batching, workers and engine; the same seed gives every controller and
-design point the same noise (common random numbers).
+design point the same noise (common random numbers).  The spec's ``digest`` covers the spec, every
+scenario file it names and any file those name (a waypoint table).
 
-The store (:func:`run_sweep`) is a folder: ``spec.toml`` (a copy), ``manifest.json``, and
+Running a sweep is the engine's (``wmr.engine.sweeps``; its names ``run_sweep``, ``read_rows``,
+``check_out``, ``finished_jobs``, ``error_jobs``, ``schema``, ``write_shard`` are importable from
+here too): the store is a folder, ``spec.toml`` (a copy), ``manifest.json``, and
 ``rows/part-*.parquet``, immutable shards each written atomically and flushed at least every
 ``flush_seconds`` of work; rerunning the same command resumes (finished jobs are skipped, none
-runs twice) and a different spec in a non-empty folder is refused.  ``summary.md`` and
-``summary.png`` (main effects: mean position RMSE against each factor, per controller) close it.
+runs twice) and a different spec in a non-empty folder is refused.  :func:`summarise` writes
+``summary.md`` and ``summary.png`` (main effects: mean position RMSE against each factor, per
+controller).
 """
 
 from __future__ import annotations
 
 import copy
 import hashlib
+import importlib
 import json
 import math
-import os
-import time
 import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -50,18 +53,19 @@ import numpy as np
 
 from wmr import controllers
 from wmr import scenario as scn
-from wmr._settings import InputError, one_line
+from wmr._settings import InputError
+from wmr.engine.jobs import COLUMNS, Job
 
-__all__ = ["SweepError", "Factor", "Spec", "SweepJob", "load_spec", "loads_spec", "design_points",
-           "COLUMNS", "jobs", "run_sweep_job", "job_rows", "check_out", "run_sweep", "read_rows",
-           "finished_jobs", "write_shard", "schema", "summarise"]  # fmt: skip
+#: Names of running a sweep, defined in ``wmr.engine.sweeps`` (see ``__getattr__``).
+_ENGINE = ("run_sweep", "read_rows", "check_out", "finished_jobs", "error_jobs", "schema",
+           "write_shard")
+__all__ = ["SweepError", "Factor", "Spec", "load_spec", "loads_spec", "design_points", "COLUMNS",
+           "jobs", "summarise", *_ENGINE]  # fmt: skip
 
 #: Design kinds.
 KINDS = ("grid", "sobol", "lhs", "random")
-#: Result columns of a row, after the job's and the factors' (DESIGN §3.5).
-COLUMNS = ("rmse_x", "rmse_y", "rmse_theta", "rmse_position", "tail_x", "tail_y", "tail_theta",
-           "tail_position", "effort", "diverged", "diverged_at", "cause", "status", "error")
-_TOP_KEYS = {"name", "scenarios", "controllers", "seeds", "design", "factors", "measures"}
+_TOP_KEYS = {"name", "scenarios", "controllers", "seeds", "design", "factors", "measures",
+             "plugins"}
 
 
 class SweepError(InputError):
@@ -234,6 +238,7 @@ def loads_spec(text: str, source: str = "<spec>") -> Spec:
              f"unknown key (known: {', '.join(sorted(_TOP_KEYS))})")  # fmt: skip
     name = data.get("name")
     fail(isinstance(name, str) and name.strip() != "", "name", name, "must be a non-empty string")
+    loaded = _plugins(data.get("plugins", []), source, fail)
     names = data.get("controllers")
     fail(isinstance(names, list) and len(names) > 0, "controllers", names,
          "must be a non-empty list of controller names")  # fmt: skip
@@ -267,12 +272,51 @@ def loads_spec(text: str, source: str = "<spec>") -> Spec:
     points = design_points(factors, design)
     runs = tuple(tuple(_point_scenario(doc, src, factors, pt, names, source) for doc, src in docs)
                  for pt in points)  # fmt: skip
-    digest = hashlib.sha256(json.dumps(
-        {"spec": data, "scenarios": [d for d, _ in docs]}, sort_keys=True, default=str
-    ).encode()).hexdigest()  # fmt: skip
+    inputs: dict = {"spec": data, "scenarios": [d for d, _ in docs]}
+    files = {str(p): hashlib.sha256(p.read_bytes()).hexdigest() for d, src in docs
+             for p in _named_files(d, src)}  # fmt: skip
+    if files:  # (a spec that names no file keeps the digest it always had)
+        inputs["files"] = files
+    if loaded:  # the plugins' code is an input of their runs
+        inputs["plugins"] = {p.ref: hashlib.sha256(p.source).hexdigest() if p.source else p.ref
+                             for p in loaded}  # fmt: skip
+    digest = hashlib.sha256(json.dumps(inputs, sort_keys=True, default=str).encode()).hexdigest()
     return Spec(name=name, source=source, scenarios=tuple(entries), controllers=tuple(names),
                 seeds=tuple(seeds), design=design, factors=factors, points=tuple(points),
                 runs=runs, digest=digest, measures=tuple(dict.fromkeys(measures)))  # fmt: skip
+
+
+def _plugins(refs: Any, source: str, fail) -> tuple:
+    """Load the spec's ``plugins`` (DESIGN §3.8: files relative to the spec, or module names)
+    before its controllers are checked; a bad plugin is a :class:`SweepError` naming it."""
+    from wmr import plugins
+
+    fail(isinstance(refs, list) and all(isinstance(r, str) for r in refs), "plugins", refs,
+         "must be a list of plugin files or module names")  # fmt: skip
+    base = Path(source).parent if not source.startswith("<") else None
+    out = []
+    for ref in refs:
+        try:
+            out.append(plugins.load(ref, base_dir=base))
+        except plugins.PluginError as err:
+            fail(False, "plugins", ref, str(err))
+    return tuple(out)
+
+
+def _named_files(doc: Mapping, source: str) -> list[Path]:
+    """The files a scenario document (file ``source``) names: every ``file`` key of its tables
+    (a waypoint table's ``reference.file``), relative to the scenario's folder (the scenario is
+    already valid, so they exist)."""
+    base = Path(source).parent if not source.startswith("<") else Path(".")
+    out = []
+    for key, value in doc.items():
+        if key == "file" and isinstance(value, str):
+            out.append(base / value)
+        elif isinstance(value, Mapping):
+            out += _named_files(value, source)
+        elif isinstance(value, list):
+            out += [p for v in value if isinstance(v, Mapping) for p in _named_files(v, source)]
+    return out
 
 
 def _design(table: Any, fail) -> dict:
@@ -339,284 +383,20 @@ def load_spec(path: str | Path) -> Spec:
 
 
 # ---------------------------------------------------------------------------------------------
-# Jobs and rows
+# Jobs
 
 
-@dataclass(frozen=True)
-class SweepJob:
-    """One job of a sweep, as sent to a worker (everything it needs, nothing more)."""
-
-    job_id: int
-    point: int
-    scenario: scn.Scenario
-    controller: str
-    seed: int
-    values: tuple  # the point's factor values
-    measures: tuple[str, ...] = ()
-
-
-def jobs(spec: Spec, job_ids) -> list[SweepJob]:
-    """The :class:`SweepJob` of each of ``job_ids``."""
+def jobs(spec: Spec, job_ids) -> list[Job]:
+    """The job (``wmr.engine.jobs.Job``) of each of ``job_ids``: its run, and as labels its
+    design point and the point's factor values (columns named by the factors' paths)."""
     out = []
+    paths = [f.path for f in spec.factors]
     for j in job_ids:
         point, s, c, r = spec.job(j)
-        out.append(SweepJob(j, point, spec.runs[point][s], spec.controllers[c], spec.seeds[r],
-                            spec.points[point], spec.measures))  # fmt: skip
+        labels = (("point", point), *zip(paths, spec.points[point], strict=True))
+        out.append(Job(spec.runs[point][s], spec.controllers[c], spec.seeds[r],
+                       measures=spec.measures, job_id=j, labels=labels))  # fmt: skip
     return out
-
-
-def _measure_columns(names) -> tuple[str, ...]:
-    from wmr.measures import MEASURES
-
-    return tuple(c for n in names for c in MEASURES[n].columns)
-
-
-def run_sweep_job(job: SweepJob) -> dict:
-    """Run one job; a run that raises becomes an error row (``status = "error"``)."""
-    from wmr.sim import simulate
-
-    row = {"job_id": job.job_id, "point": job.point, "scenario": job.scenario.name,
-           "controller": job.controller, "seed": job.seed, "values": job.values}  # fmt: skip
-    try:
-        r = simulate(job.scenario, job.controller, job.seed, keep_trajectory=bool(job.measures))
-        if job.measures:
-            from wmr.measures import measure
-
-            row.update(measure(job.measures, r, job.scenario))
-    except Exception as err:  # noqa: BLE001 - the contract: an error row, the sweep goes on
-        row.update(dict.fromkeys(COLUMNS[:9] + _measure_columns(job.measures), math.nan),
-                   diverged=False, diverged_at=None, cause=None, status="error",
-                   error=one_line(f"{type(err).__name__}: {err}")[:500])  # fmt: skip
-        return row
-    m, t = r.rmse, r.rmse_after_transient
-    row.update(rmse_x=m["x"], rmse_y=m["y"], rmse_theta=m["theta"], rmse_position=m["position"],
-               tail_x=t["x"], tail_y=t["y"], tail_theta=t["theta"], tail_position=t["position"],
-               effort=r.effort, diverged=r.diverged, diverged_at=r.diverged_at, cause=r.cause,
-               status="ok", error=None)  # fmt: skip
-    return row
-
-
-def job_rows(spec: Spec, job_ids) -> list[dict]:
-    """The rows of ``job_ids``, run here (the serial path of :func:`run_sweep`)."""
-    return [run_sweep_job(j) for j in jobs(spec, job_ids)]
-
-
-# ---------------------------------------------------------------------------------------------
-# The store
-
-
-def _factor_type(f: Factor):
-    import pyarrow as pa
-
-    if f.levels is None:
-        return pa.float64()
-    if all(isinstance(v, bool) for v in f.levels):
-        return pa.bool_()
-    if all(isinstance(v, int) and not isinstance(v, bool) for v in f.levels):
-        return pa.int64()
-    if all(isinstance(v, int | float) and not isinstance(v, bool) for v in f.levels):
-        return pa.float64()
-    return pa.string()
-
-
-def schema(spec: Spec):
-    """The Parquet schema of the store's rows (DESIGN §3.5)."""
-    import pyarrow as pa
-
-    cols = [("job_id", pa.int64()), ("point", pa.int64()), ("scenario", pa.string()),
-            ("controller", pa.string()), ("seed", pa.int64())]  # fmt: skip
-    cols += [(f.path, _factor_type(f)) for f in spec.factors]
-    cols += [(c, pa.float64()) for c in COLUMNS[:9]]
-    cols += [("diverged", pa.bool_()), ("diverged_at", pa.float64()), ("cause", pa.string()),
-             ("status", pa.string()), ("error", pa.string())]  # fmt: skip
-    cols += [(c, pa.float64()) for c in _measure_columns(spec.measures)]
-    return pa.schema(cols)
-
-
-def _table(spec: Spec, rows: list[dict]):
-    import pyarrow as pa
-
-    sch = schema(spec)
-    paths = [f.path for f in spec.factors]
-    cols = {name: [r[name] for r in rows] for name in sch.names if name not in paths}
-    for i, path in enumerate(paths):
-        as_text = sch.field(path).type == pa.string()
-        cols[path] = [str(r["values"][i]) if as_text else r["values"][i] for r in rows]
-    return pa.table({name: cols[name] for name in sch.names}, schema=sch)
-
-
-def write_shard(out: Path, spec: Spec, rows: list[dict]) -> Path | None:
-    """Write ``rows`` as a new immutable shard ``rows/part-<time>-<pid>.parquet``, atomically
-    (a temporary file, then a rename: a reader never sees a half-written shard)."""
-    import pyarrow.parquet as pq
-
-    if not rows:
-        return None
-    folder = out / "rows"
-    folder.mkdir(parents=True, exist_ok=True)
-    name = f"part-{time.time_ns():020d}-{os.getpid()}.parquet"
-    tmp = folder / f".{name}.tmp"
-    pq.write_table(_table(spec, rows), tmp)
-    with open(tmp, "rb") as fh:
-        os.fsync(fh.fileno())
-    os.replace(tmp, folder / name)
-    return folder / name
-
-
-def read_rows(out: str | Path, columns: Sequence[str] | None = None):
-    """All rows of the store ``out`` as a ``pyarrow.Table`` (None if it has none yet)."""
-    import pyarrow.parquet as pq
-
-    shards = sorted((Path(out) / "rows").glob("part-*.parquet"))
-    if not shards:
-        return None
-    import pyarrow as pa
-
-    return pa.concat_tables([pq.read_table(p, columns=columns) for p in shards])
-
-
-def finished_jobs(out: str | Path) -> set[int]:
-    """The ``job_id`` of every row already in the store."""
-    table = read_rows(out, ["job_id"])
-    return set() if table is None else set(table.column("job_id").to_pylist())
-
-
-# ---------------------------------------------------------------------------------------------
-# The driver
-
-
-def check_out(out: Path, spec: Spec) -> None:
-    """``out`` is empty, or holds a store of this very spec (then the sweep resumes)."""
-    if out.exists() and not out.is_dir():
-        raise SweepError(spec.source, "--out", str(out), "exists and is not a directory")
-    if not out.exists() or not any(out.iterdir()):
-        return
-    manifest = out / "manifest.json"
-    try:
-        stored = json.loads(manifest.read_text())["spec_digest"]
-    except (OSError, ValueError, KeyError):
-        stored = None
-    if stored != spec.digest:
-        raise SweepError(spec.source, "--out", str(out),
-                         "is not empty and holds no store of this spec (a different spec, or "
-                         "not a sweep store): give another folder")  # fmt: skip
-
-
-def _costs(spec: Spec) -> dict:
-    """Seconds per step of each (controller, plant kind) on this machine, measured by a short
-    run after the warm-up (to size batches: a batch should take seconds)."""
-    from wmr.sim import simulate
-
-    out = {}
-    for sc in (run for point in spec.runs for run in point):
-        for c in spec.controllers:
-            key = (c, sc.plant.ideal)
-            if key not in out:
-                short = replace_duration(sc, min(sc.n_steps, 500))
-                t0 = time.perf_counter()
-                simulate(short, c, 0, keep_trajectory=False)
-                out[key] = (time.perf_counter() - t0) / short.n_steps
-    return out
-
-
-def replace_duration(sc: scn.Scenario, steps: int) -> scn.Scenario:
-    """``sc`` cut to ``steps`` steps (its disturbances and plant changes left as they are)."""
-    import dataclasses
-
-    return dataclasses.replace(sc, duration=steps * sc.dt)
-
-
-def batches(spec: Spec, todo: Sequence[int], costs: dict, seconds: float,
-            workers: int = 1) -> list[list[int]]:  # fmt: skip
-    """Consecutive ``todo`` jobs in batches of about ``seconds`` of work each (estimated from
-    ``costs``), shrinking toward the end (guided scheduling: a batch holds at most a
-    ``1 / (2 workers)`` share of the work left, so the last batches are short and no worker
-    idles long while another finishes).  Rows do not depend on the batching."""
-    load = [spec.runs[p][s].n_steps * costs[(spec.controllers[c], spec.runs[p][s].plant.ideal)]
-            for p, s, c, _ in map(spec.job, todo)]  # fmt: skip
-    left = float(sum(load))
-    share = 1.0 / (2 * max(1, int(workers)))
-    out, current, acc = [], [], 0.0
-    for j, cost in zip(todo, load, strict=True):
-        if current and acc + cost > min(seconds, share * left):
-            out.append(current)
-            left -= acc
-            current, acc = [], 0.0
-        current.append(j)
-        acc += cost
-    if current:
-        out.append(current)
-    return out
-
-
-def run_sweep(spec: Spec, out: str | Path, *, workers: int | None = None,
-              scheduler: str | None = None, batch_seconds: float = 2.0,
-              flush_seconds: float = 30.0, progress: bool | None = None) -> dict:  # fmt: skip
-    """Run (or resume) the sweep ``spec`` into the store ``out``; returns the manifest.
-
-    ``workers``/``scheduler`` choose the engine (``wmr.study.engine``: 1 = serial here, N = a
-    local Dask cluster of N processes, or the cluster at ``scheduler``).  Finished jobs (rows
-    already in ``out/rows``) are skipped; completed rows are written as a new shard at least
-    every ``flush_seconds``, so an interruption, even SIGKILL, loses at most that much work.
-    """
-    from wmr import study
-    from wmr.io import atomic_write_text, write_json
-
-    out = Path(out)
-    check_out(out, spec)
-    t0 = time.perf_counter()
-    (out / "rows").mkdir(parents=True, exist_ok=True)
-    if not (out / "spec.toml").exists():
-        atomic_write_text(out / "spec.toml", Path(spec.source).read_text(encoding="utf-8"))
-    done = finished_jobs(out)
-    todo = [j for j in range(spec.n_jobs) if j not in done]
-    before = out / "manifest.json"
-    total = json.loads(before.read_text()).get("run_seconds_total", 0.0) if before.exists() else 0.0
-    manifest = _manifest(spec, done, started=time.time())
-    write_json(out / "manifest.json", {**manifest, "run_seconds_total": total})
-    pairs = {(c, sc.plant.ideal): (sc, c) for point in spec.runs for sc in point
-             for c in spec.controllers}  # fmt: skip
-    with study.engine(workers, scheduler) as eng:
-        eng.run_everywhere(study.warm_up, list(pairs.values()))
-        groups = batches(spec, todo, _costs(spec), batch_seconds, eng.workers) if todo else []
-        keys = [f"wmr-sweep-{spec.digest[:12]}-{g[0]}-{g[-1]}-{len(g)}" for g in groups]
-        bar = study.Progress(len(todo), f"sweep {spec.name}", progress)
-        buffer, last, t_run = [], time.perf_counter(), time.perf_counter()
-        try:
-            work = [jobs(spec, g) for g in groups]
-            for _, rows in eng.map_batches(run_sweep_job, work, keys):
-                buffer.extend(rows)
-                bar.update(len(rows))
-                if time.perf_counter() - last >= flush_seconds:
-                    write_shard(out, spec, buffer)
-                    buffer, last = [], time.perf_counter()
-        finally:
-            write_shard(out, spec, buffer)  # what is complete is kept, even on an interrupt
-            bar.close()
-        run_s = time.perf_counter() - t_run  # the engine's start and stop are in ``seconds``
-        manifest.update(engine=eng.name, workers=eng.workers)
-    done = finished_jobs(out)
-    manifest.update(_manifest(spec, done, started=manifest["started"]),
-                    engine=manifest["engine"], workers=manifest["workers"],
-                    seconds=round(time.perf_counter() - t0, 3), run_seconds=round(run_s, 3),
-                    run_seconds_total=round(total + run_s, 3), runs_this_time=len(todo),
-                    runs_per_s=round(len(todo) / run_s, 3) if run_s > 0 and todo else None,
-                    batch_seconds=batch_seconds, flush_seconds=flush_seconds,
-                    batches=len(groups), finished=time.time())  # fmt: skip
-    write_json(out / "manifest.json", manifest)
-    summarise(out, spec)
-    return manifest
-
-
-def _manifest(spec: Spec, done: set, started: float) -> dict:
-    import wmr
-
-    return {"name": spec.name, "spec_digest": spec.digest, "wmr_version": wmr.__version__,
-            "design": dict(spec.design), "factors": [f.path for f in spec.factors],
-            "points": len(spec.points), "scenarios": list(spec.scenarios),
-            "controllers": list(spec.controllers), "seeds": len(spec.seeds),
-            "jobs": spec.n_jobs, "done": len(done), "complete": len(done) == spec.n_jobs,
-            "started": started}  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------
@@ -637,10 +417,11 @@ def summarise(out: str | Path, spec: Spec) -> dict:
     and the main effects (mean position RMSE against each factor, per controller)."""
     import matplotlib.pyplot as plt
 
+    from wmr.engine.store import ShardStore
     from wmr.io import atomic_write_text, save_figure
 
     out = Path(out)
-    table = read_rows(out)
+    table = ShardStore(out).read()
     if table is None:
         return {}
     df = table.to_pandas()
@@ -682,3 +463,10 @@ def summarise(out: str | Path, spec: Spec) -> dict:
     plt.close(fig)
     atomic_write_text(out / "summary.md", "\n".join(lines) + "\n\n![main effects](summary.png)\n")
     return {"rows": len(df)}
+
+
+def __getattr__(name: str):
+    """The names of running a sweep, from ``wmr.engine.sweeps`` (loaded on first use)."""
+    if name in _ENGINE:
+        return getattr(importlib.import_module("wmr.engine.sweeps"), name)
+    raise AttributeError(f"module 'wmr.sweep' has no attribute {name!r}")

@@ -65,7 +65,9 @@ for f in fit["scenario_files"]:
     for c in prior.CONTROLLERS:
         r = simulate(sc, c, fit["seeds"][0], keep_trajectory=False)
         ours += [r.rmse[a] if not r.diverged else prior.DIVERGED_RMSE for a in prior.AXES]
-print("seed-0 numbers equal the record's:", ours == fit["per_seed"][0])
+# the record was made on another CPU (numpy's sin/cos differ in the last bits): compare to 1e-12
+same = np.allclose(ours, fit["per_seed"][0], rtol=1e-12, atol=0.0)
+print("seed-0 numbers equal the record's (to 1e-12 relative):", same)
 # %% [md]
 # ## How likely is the paper's ranking over the prior?
 # %%

@@ -42,7 +42,7 @@ from dataclasses import dataclass, field, make_dataclass
 
 import numpy as np
 
-from wmr.controllers import adaptive_nn, backstepping, iapid_nn_dekf, pid
+from wmr.controllers import adaptive_bsc, adaptive_nn, backstepping, iapid_nn_dekf, pid
 
 __all__ = ["Controller", "PyController", "ControllerStopped", "REGISTRY", "NAMES", "BUILTIN_NAMES",
            "ORACLE_NAMES", "PAPER_NAMES", "get", "label", "colour", "register", "unregister"]
@@ -179,6 +179,9 @@ REGISTRY: dict[str, Controller] = {
         Controller("pid", pid.FixedSettings, pid.pack, pid.law, pid.final_state,
                    pid.GAIN_NAMES, uses_estimator=False, label="PID (fixed)",
                    colour="tab:gray"),
+        Controller("adaptive-bsc", adaptive_bsc.Settings, adaptive_bsc.pack, adaptive_bsc.law,
+                   adaptive_bsc.final_state, adaptive_bsc.STATE_NAMES, uses_estimator=False,
+                   label="Adaptive BSC", colour="tab:green"),
         Controller("iapid-oracle", iapid_nn_dekf.Settings, iapid_nn_dekf.pack_oracle,
                    iapid_nn_dekf.law, iapid_nn_dekf.final_state, iapid_nn_dekf.STATE_NAMES,
                    uses_estimator=True, label="IAPID (oracle identifier)", colour="tab:cyan",

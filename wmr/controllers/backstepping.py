@@ -21,7 +21,7 @@ from wmr._jit import njit
 from wmr._settings import check
 from wmr.kinematics import tracking_error_parts
 
-__all__ = ["Settings", "State", "STATE_NAMES", "pack", "final_state", "law"]
+__all__ = ["Settings", "State", "STATE_NAMES", "pack", "final_state", "law", "command"]
 
 #: Controller-state entries logged along a run (none: the law is static).
 STATE_NAMES: tuple[str, ...] = ()
@@ -68,11 +68,18 @@ def final_state(p, s, theta, P) -> State:
     return State()
 
 
+@njit(inline="always")
+def command(p, e, ref, u):
+    """Write Kanayama's command ``u = (v, w)`` for the tracking error ``e = (e1, e2, e3)`` (eq. 6;
+    a tuple of scalars or an array) and the reference sample ``ref``, gains ``p[:3]`` (the law
+    below, and ``adaptive_bsc``)."""
+    v_r = ref[3]
+    w_r = ref[4]
+    u[0] = v_r * math.cos(e[2]) + p[0] * e[0]
+    u[1] = w_r + v_r * (p[1] * e[1] + p[2] * math.sin(e[2]))
+
+
 @njit
 def law(p, s, theta, P, q_hat, ref, dt, u):
     """Write the backstepping input ``u = (v, w)`` for estimate ``q_hat`` and sample ``ref``."""
-    e1, e2, e3 = tracking_error_parts(q_hat, ref, p[3] != 0.0)
-    v_r = ref[3]
-    w_r = ref[4]
-    u[0] = v_r * math.cos(e3) + p[0] * e1
-    u[1] = w_r + v_r * (p[1] * e2 + p[2] * math.sin(e3))
+    command(p, tracking_error_parts(q_hat, ref, p[3] != 0.0), ref, u)
