@@ -253,20 +253,25 @@ def summary(record: dict) -> str | None:
     std = [x for n in names for x in record[n]["target_noise_std"]]
     span = (f"{min(std):.2f}" if f"{min(std):.2f}" == f"{max(std):.2f}"
             else f"{min(std):.2f}–{max(std):.2f}")  # fmt: skip
+    rows = [(n, f"{record[n]['filter_r_over_target_noise']:.3g}",
+             f"{record[n]['weight_error_theorem1_bound_final']:.3g}",
+             f"{record[n]['weight_error_theorem1_bound_final_measured_noise']:.3g}",
+             f"{record[n]['weight_error_initial']:.3g}", f"{record[n]['alpha']:.3g}")
+            for n in names]  # fmt: skip
+    table = common.md_table(("scenario", "filter R / largest target-noise variance",
+                             "bound at the end, nominal", "bound at the end, measured",
+                             "initial weight error", "Lemma 2's α"), rows)  # fmt: skip
     return (
         "Inequality (48) with Lemma 2's α is a *consistency check*, not evidence: with the run's "
-        "own constants it is a theorem for an exact Kalman step (`wmr.stability`), so its holding "
-        f"at {each('ineq48_fraction', '.1f', 100.0, ' %')} of the filter steps checks the "
-        "computation; boundedness needs Assumption 1's constants on an infinite horizon.  "
-        "Theorem 1's noise term, nominal (the filter's R taken as the noise covariance) and "
-        "measured (the second moment of the real noise on the identifier's targets: target minus "
-        "the true pose increment, i.e. the pose estimate's error differenced over dt, std "
-        f"{span} per axis in m/s or rad/s; the filter's R is "
-        f"{each('filter_r_over_target_noise', '.3g')} times its largest variance): the bound at "
-        f"the end of the run is {each('weight_error_theorem1_bound_final', '.3g')} nominal and "
-        f"{each('weight_error_theorem1_bound_final_measured_noise', '.3g')} measured, against "
-        f"initial weight errors {each('weight_error_initial', '.3g')}"
-        + (": vacuous in both readings, since its floor 2 p_max μ/α divides by Lemma 2's α "
-           f"({each('alpha', '.3g')})." if vacuous else ".")
-        + "  The per-scenario notes are in `results/boundedness.json`."
+        "own constants it is a theorem for an exact Kalman step (`wmr.stability`).  So its "
+        f"holding at {each('ineq48_fraction', '.1f', 100.0, ' %')} of the filter steps checks "
+        "the computation; boundedness needs Assumption 1's constants on an infinite horizon.  "
+        "Theorem 1's noise term is read two ways.  Nominal: the filter's R taken as the noise "
+        "covariance.  Measured: the second moment of the real noise on the identifier's targets "
+        "(target minus the true pose increment, i.e. the pose estimate's error differenced over "
+        f"dt, std {span} per axis in m/s or rad/s)."
+        + ("  The bound is vacuous in both readings, since its floor 2 p_max μ/α divides by "
+           "Lemma 2's α." if vacuous else "")
+        + "  The per-scenario notes are in `results/boundedness.json`.\n\n"
+        + "\n".join(table)
     )  # fmt: skip

@@ -422,14 +422,14 @@ def notes(record: dict) -> list[str]:
         f"{rot['error_dynamics_max_residual']['corrected']:.1e}) and not with the printed matrix "
         f"(median residual {rot['error_dynamics_median_residual']['printed']:.2f}).",
     ]
-    parts = []
+    lines.append("Learned vs true plant Jacobian, means over the last half of the runs and over "
+                 "seeds (relative error 1 = the trivial J = 0), per scenario:")
     for sc, d in record["learned_jacobian"]["scenarios"].items():
         h = {k: d[k]["mean"] for k in LEARNED_KEYS}
-        parts.append(f"{sc} {h['rel_error']:.2f} (norm ratio {h['norm_ratio']:.1f}, matrix cosine "
-                     f"{h['matrix_cosine']:.2f}; SGD direction cosine {h['cosine']:.2f}, same sign "
-                     f"v/w {h['sign_v']:.2f}/{h['sign_w']:.2f})")  # fmt: skip
-    lines.append("Learned vs true plant Jacobian, means over the last half of the runs and over "
-                 "seeds; relative error 1 = the trivial J = 0: " + "; ".join(parts) + ".")
+        lines.append(f"{sc}: relative error {h['rel_error']:.2f}, norm ratio "
+                     f"{h['norm_ratio']:.1f}, matrix cosine {h['matrix_cosine']:.2f}; SGD "
+                     f"direction cosine {h['cosine']:.2f}, same sign v/w {h['sign_v']:.2f}/"
+                     f"{h['sign_w']:.2f}.")  # fmt: skip
     quiet = record["learned_jacobian"].get("noise_free")
     if quiet:
         lines.append(_explanation(record["learned_jacobian"]))

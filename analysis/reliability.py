@@ -380,12 +380,12 @@ def render(record: dict) -> str:
               f"positive definite after {fmt(neg['positive_definite_after'])};",
               f"- a controller whose output overflows (backstepping gains 1e308): diverged at "
               f"{fmt(wild['diverged_at'], 2)} s ({wild['cause']});",
-              "- pose noise std (5 m, 5 m, 3 rad) with a 2 m divergence bound: "
-              + "; ".join(f"{controllers.label(k)} "
-                          + (f"diverged at {fmt(v['diverged_at'], 2)} s ({v['cause']})"
-                             if v["diverged"] else "did not diverge")
-                          for k, v in f["huge_noise"].items() if k != "control run")
-              + "; the next run of the same study completed normally.", ""]  # fmt: skip
+              "- pose noise std (5 m, 5 m, 3 rad) with a 2 m divergence bound (the next run of "
+              "the same study completed normally):",
+              *(f"  - {controllers.label(k)} "
+                + (f"diverged at {fmt(v['diverged_at'], 2)} s ({v['cause']});"
+                   if v["diverged"] else "did not diverge;")
+                for k, v in f["huge_noise"].items() if k != "control run"), ""]  # fmt: skip
     m = record["run_memory"]
     notes.append(f"`wmr run` of all {m['controllers']} controllers over {m['hours']:g} simulated "
                  f"hour(s) ({m['steps']} steps each) with trajectories (CSV, figure): peak "

@@ -98,4 +98,4 @@ def test_check_rejects_a_failed_outcome(quick):
 def test_committed_record_passes_the_check_and_renders_as_the_committed_report():
     record = json.loads(COMMITTED.read_text())
     reliability.check(record)
-    assert (PAPER / "report.md").read_text().endswith(reliability.render(record))
+    assert reliability.render(record) in (PAPER / "report.md").read_text()

@@ -258,15 +258,15 @@ def cmd_reproduce(args) -> int:
         options = {"seeds": args.seeds} if name == "reproduction" else {}
         run_and_check(study, stage, workers=args.workers, **options)
     n = _publish(stage, out)
-    path = _report(out)
-    print(f"wrote {n} files and {path}")
+    path = _report(out, html=True)
+    print(f"wrote {n} files, {path} and {path.with_suffix('.html')}")
     return 0
 
 
-def _report(out: Path) -> Path:
+def _report(out: Path, html: bool = False) -> Path:
     from analysis import report
 
-    return report.main(out)
+    return report.main(out, html=html)
 
 
 def cmd_report(args) -> int:
@@ -274,7 +274,8 @@ def cmd_report(args) -> int:
     if not (out / "results").is_dir():
         raise UsageError(f"--out {str(out)!r}: no results/ folder to build the report from")
     _studies()
-    print(f"wrote {_report(out)}")
+    path = _report(out, html=args.html)
+    print(f"wrote {path}" + (f" and {path.with_suffix('.html')}" if args.html else ""))
     return 0
 
 
@@ -410,6 +411,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     report = sub.add_parser("report", help="rebuild report.md from the stored results")
     report.add_argument("--out", default="paper", help="folder with results/ (default: paper)")
+    report.add_argument("--html", action="store_true",
+                        help="also write report.html: one self-contained page, figures "
+                             "embedded")  # fmt: skip
     report.set_defaults(func=cmd_report)
 
     ana = sub.add_parser("analyze", help="run one study of analysis/ (and check it)")

@@ -4,6 +4,8 @@
 # The unicycle of eq. (1) under zero-order hold, its exact arc step beside Euler and RK4, and the
 # error frame of eqs. (4)/(6): the printed matrix is not a rotation (errata E3). All code is from
 # `wmr`; this notebook only calls it.
+#
+# In the report: [Errata of the paper and the evidence](../paper/report.md#errata-of-the-paper-and-the-evidence).
 # %%
 import dataclasses
 

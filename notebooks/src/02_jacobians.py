@@ -9,6 +9,8 @@
 # `paper/results/jacobians.json`; here it runs at 200 points.
 #
 # Relative error: ‖A − B‖_F / max(‖B‖_F, tiny), with B the AD value.
+#
+# In the report: [Errata checked with exact Jacobians (CasADi)](../paper/report.md#errata-checked-with-exact-jacobians-casadi).
 # %%
 from analysis import jacobians as jac
 from wmr import scenario as scn

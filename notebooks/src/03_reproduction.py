@@ -4,6 +4,8 @@
 # The paper's three scenarios and four controllers over a few seeds (the full study, 20 seeds and
 # the ablations, is `wmr reproduce`, whose tables are in `paper/tables/`). All controllers see
 # the same noise for a seed.
+#
+# In the report: [Tables 1–3: the paper beside this reproduction](../paper/report.md#tables-13-the-paper-beside-this-reproduction).
 # %%
 from wmr import controllers
 from wmr import scenario as scn

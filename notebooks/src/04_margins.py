@@ -8,6 +8,8 @@
 # The loops are built by `wmr.loops`, their margins computed by `wmr.margins`. The full study
 # (more operating points, all runs, the printed rotation, every cross-check) is
 # `analysis/margins.py`, which writes `paper/results/margins.json`.
+#
+# In the report: [Linearised loops: margins (python-control)](../paper/report.md#linearised-loops-margins-python-control).
 # %%
 from IPython.display import display
 

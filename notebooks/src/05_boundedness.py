@@ -8,6 +8,8 @@
 # kernel, step by step, with hooks around the controller law. The full study (every step,
 # 3 scenarios, 50 Monte-Carlo seeds for the pose EKF) is `wmr analyze boundedness`; its numbers
 # are in `paper/report.md`.
+#
+# In the report: [DEKF boundedness (Assumption 1, Lemma 2)](../paper/report.md#dekf-boundedness-assumption-1-lemma-2).
 # %%
 import dataclasses
 
