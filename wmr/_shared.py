@@ -16,8 +16,9 @@ __all__ = ["Shared", "SHARED"]
 
 class Shared:
     """What the runs of a scenario share, built once: ``get(kind, parts, extra, build)``
-    returns ``build()`` for the scenario's ``parts`` (immutable objects: a ``ReferenceSpec``, ``Plant``,
-    ...) and the hashable ``extra`` (``dt``, a name), computed on the first call and kept.
+    returns ``build()`` for the scenario's ``parts`` (immutable objects: a ``ReferenceSpec``,
+    ``Plant``, ...) and the hashable ``extra`` (``dt``, a name), computed on the first call and
+    kept.
 
     Keyed by the parts' identity (each is kept alive beside its value, so an identity is never
     reused while its entry lives): a scenario and its ``dataclasses.replace`` copies share their

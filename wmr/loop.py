@@ -52,8 +52,15 @@ from wmr import metrics, plant
 from wmr._jit import njit
 from wmr.ekf import pose_predict, pose_update, pose_work
 from wmr.kinematics import step_into
-from wmr.runsetup import (CHUNK, PLANT_IDEAL, PLANT_PYTHON, PLANT_TABLE, Prepared, prepare,
-                          seed_sequences)  # fmt: skip
+from wmr.runsetup import (
+    CHUNK,
+    PLANT_IDEAL,
+    PLANT_PYTHON,
+    PLANT_TABLE,
+    Prepared,
+    prepare,
+    seed_sequences,
+)
 
 __all__ = [
     "CHUNK",

@@ -1,4 +1,4 @@
-"""A run's inputs: :func:`prepare`, set up once per scenario and shared by its seeds and controllers.
+"""A run's inputs: :func:`prepare`, set up once per scenario, shared by its seeds and controllers.
 
 :func:`prepare` turns ``(scenario, controller, seed, settings)`` into everything the loop
 (``wmr.loop``) reads: the controller's packed parameters and state, the noise stream, the pose

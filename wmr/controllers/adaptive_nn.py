@@ -60,8 +60,8 @@ import numpy as np
 
 from wmr import nn
 from wmr._jit import njit
-from wmr._shared import SHARED
 from wmr._settings import check, positive
+from wmr._shared import SHARED
 from wmr.controllers import backstepping
 from wmr.ekf import repair_covariance, weight_update
 from wmr.kinematics import INTEGRATORS, step_jacobians_into, tracking_error_parts, wrap_angle

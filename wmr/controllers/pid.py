@@ -36,8 +36,8 @@ from enum import IntEnum
 import numpy as np
 
 from wmr._jit import njit
-from wmr._shared import SHARED
 from wmr._settings import check
+from wmr._shared import SHARED
 from wmr.kinematics import INTEGRATORS, step_jacobians_into, tracking_error_parts
 
 __all__ = [
