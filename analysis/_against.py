@@ -5,9 +5,11 @@ files and runs the same small timing program in two fresh processes -- one impor
 ``wmr``, one the worktree's (``PYTHONPATH`` first: it comes before the editable install) -- in
 turn, ABBA, ``pairs`` times.  Each process warms every controller up, then times ``runs`` full
 lemniscate runs of each (this thread's CPU time per run, set-up included) and as many one-step
-runs (the set-up alone), and reports the medians.  The ratio of the two trees is taken pair by
-pair, so a drift of the machine's speed between pairs cancels; the median ratio is reported
-with a distribution-free interval (order statistics of the pairs, :func:`median_interval`).
+runs (the set-up alone), and reports the medians; the rows of :data:`DRIVER_ROWS` time the same
+on short runs through the Python driver and on the MuJoCo robot.  The ratio of the two trees is
+taken pair by pair, so a drift of the machine's speed between pairs cancels; the median ratio
+is reported with a distribution-free interval (order statistics of the pairs,
+:func:`median_interval`).
 """
 
 from __future__ import annotations
@@ -22,49 +24,69 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["PROGRAM", "worktree", "time_tree", "compare", "median_interval", "table"]
+__all__ = ["PROGRAM", "DRIVER_ROWS", "worktree", "time_tree", "compare", "median_interval",
+           "table"]
 
 #: The timing program, run in a fresh interpreter against the ``wmr`` on its path.  It uses only
 #: what every version of the suite has (scenario.load/builtin, sim.simulate).  A variant
 #: ``name~approximate`` is the controller with ``gradient = "approximate"`` (the SGD step without
 #: the exact gradient's heading term, as before it was added), where the tree has that setting.
+#: A suffix ``@python`` runs the controller through the Python driver, ``@mujoco`` on the shipped
+#: MuJoCo robot (``mujoco/lemniscate``, where the tree has it), both over the first
+#: :data:`SHORT_SECONDS` of the run.  ``steps`` is each row's step count: per step = (run -
+#: set-up) / steps.
 PROGRAM = r"""
 import dataclasses, json, sys, time
 import numpy as np
 import wmr
 from wmr import controllers, scenario as scn, sim
-names, runs = sys.argv[1].split(","), int(sys.argv[2])
+names, runs, short_s = sys.argv[1].split(","), int(sys.argv[2]), float(sys.argv[3])
 lem = scn.load(scn.builtin("lemniscate"))
-one = dataclasses.replace(lem, duration=lem.dt)
 jobs = {}
 for name in names:
-    base, _, variant = name.partition("~")
+    head, _, mode = name.partition("@")
+    base, _, variant = head.partition("~")
     if base not in controllers.REGISTRY:
         continue
+    sc, driver = lem, None
+    if mode == "python":
+        sc, driver = dataclasses.replace(lem, duration=short_s), "python"
+    elif mode == "mujoco":
+        try:
+            sc = scn.load(scn.builtin("mujoco/lemniscate"))
+        except (FileNotFoundError, OSError):
+            continue
+        sc = dataclasses.replace(sc, duration=short_s)
     st = None
     if variant:
         try:
-            st = dataclasses.replace(lem.settings(base), gradient=variant)
+            st = dataclasses.replace(sc.settings(base), gradient=variant)
         except TypeError:
             continue
-    jobs[name] = (base, st)
-for base, st in jobs.values():  # warm-up: compilation or the disk cache
-    sim.simulate(lem, base, 0, settings=st, keep_trajectory=False)
-    sim.simulate(one, base, 0, settings=st, keep_trajectory=False)
-out = {"wmr": wmr.__file__, "run_ms": {}, "setup_ms": {}}
-for name, (base, st) in jobs.items():
+    jobs[name] = (base, st, sc, dataclasses.replace(sc, duration=sc.dt), driver)
+for base, st, sc, one, driver in jobs.values():  # warm-up: compilation or the disk cache
+    sim.simulate(sc, base, 0, settings=st, keep_trajectory=False, driver=driver)
+    sim.simulate(one, base, 0, settings=st, keep_trajectory=False, driver=driver)
+out = {"wmr": wmr.__file__, "run_ms": {}, "setup_ms": {}, "steps": {}}
+for name, (base, st, sc, one, driver) in jobs.items():
     full, short = [], []
     for seed in range(runs):
         t0 = time.thread_time()
-        sim.simulate(lem, base, seed, settings=st, keep_trajectory=False)
+        sim.simulate(sc, base, seed, settings=st, keep_trajectory=False, driver=driver)
         full.append(time.thread_time() - t0)
         t0 = time.thread_time()
-        sim.simulate(one, base, seed, settings=st, keep_trajectory=False)
+        sim.simulate(one, base, seed, settings=st, keep_trajectory=False, driver=driver)
         short.append(time.thread_time() - t0)
     out["run_ms"][name] = 1e3 * float(np.median(full))
     out["setup_ms"][name] = 1e3 * float(np.median(short))
+    out["steps"][name] = sc.n_steps
 print(json.dumps(out))
 """
+#: Rows :func:`compare` adds by default: the Python driver and the MuJoCo robot (short runs).
+DRIVER_ROWS = ("backstepping@python", "pid@python", "iapid-nn-dekf@python",
+               "backstepping@mujoco", "pid@mujoco", "iapid-nn-dekf@mujoco")
+#: The duration [s] of the rows of :data:`DRIVER_ROWS`.
+SHORT_SECONDS = 2.0
 
 
 def worktree(ref: str, repo: Path | None = None) -> Path:
@@ -80,14 +102,24 @@ def worktree(ref: str, repo: Path | None = None) -> Path:
     return path
 
 
-def time_tree(tree: Path, names, runs: int) -> dict:
+def time_tree(tree: Path, names, runs: int, short_seconds: float = SHORT_SECONDS) -> dict:
     """One process of :data:`PROGRAM` against the ``wmr`` of ``tree``: its medians."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(
         filter(None, (str(tree), os.environ.get("PYTHONPATH"))))}  # fmt: skip
-    out = subprocess.run([sys.executable, "-c", PROGRAM, ",".join(names), str(runs)],
+    out = subprocess.run([sys.executable, "-c", PROGRAM, ",".join(names), str(runs),
+                          repr(short_seconds)],
                          capture_output=True, text=True, env=env, cwd=str(tree), check=True,
                          timeout=1800)  # fmt: skip
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _per_step(rec: dict) -> dict:
+    """``rec`` with ``step_us``: (run - set-up) / steps [us] per row (a tree's program that
+    reports its steps)."""
+    if "steps" in rec:
+        rec["step_us"] = {name: 1e3 * (rec["run_ms"][name] - rec["setup_ms"][name]) / n
+                          for name, n in rec["steps"].items()}  # fmt: skip
+    return rec
 
 
 def median_interval(x, level: float = 0.9) -> tuple[float, float, float]:
@@ -104,25 +136,31 @@ def median_interval(x, level: float = 0.9) -> tuple[float, float, float]:
     return float(np.median(x)), float(x[j - 1]), float(x[n - j])
 
 
-def compare(ref: str, names, pairs: int = 5, runs: int = 20, level: float = 0.9) -> dict:
-    """This tree against ``ref``: per controller, the per-run and set-up CPU medians of each side
-    (the median over pairs) and the paired ratio this / ``ref`` with its interval."""
+def compare(ref: str, names, pairs: int = 5, runs: int = 20, level: float = 0.9,
+            extra=DRIVER_ROWS) -> dict:
+    """This tree against ``ref``: per controller (``names`` and the ``extra`` rows), the per-run,
+    set-up and per-step CPU medians of each side (the median over pairs) and the paired ratio
+    this / ``ref`` with its interval."""
+    names = (*names, *(x for x in extra if x not in names))
     here = Path(__file__).resolve().parents[1]
     there = worktree(ref, here)
     rounds = []
     for i in range(pairs):  # ABBA: each side as often first as second
         order = ((here, "this"), (there, "ref")) if i % 2 == 0 else ((there, "ref"), (here, "this"))
-        rounds.append({side: time_tree(tree, names, runs) for tree, side in order})
+        rounds.append({side: _per_step(time_tree(tree, names, runs)) for tree, side in order})
     out = {"ref": ref, "pairs": pairs, "runs_per_process": runs, "level": level,
            "controllers": {}, "this_only": {}}  # fmt: skip
     for name in names:
         if not all(name in r["ref"]["run_ms"] for r in rounds):  # e.g. a setting ref lacks
             if all(name in r["this"]["run_ms"] for r in rounds):
                 out["this_only"][name] = {k: float(np.median([r["this"][k][name] for r in rounds]))
-                                          for k in ("run_ms", "setup_ms")}  # fmt: skip
+                                          for k in ("run_ms", "setup_ms", "step_us")
+                                          if all(k in r["this"] for r in rounds)}  # fmt: skip
             continue
         row = {}
-        for key in ("run_ms", "setup_ms"):
+        for key in ("run_ms", "setup_ms", "step_us"):
+            if not all(key in r[side] for r in rounds for side in ("this", "ref")):
+                continue
             this = [r["this"][key][name] for r in rounds]
             that = [r["ref"][key][name] for r in rounds]
             med, lo, hi = median_interval([a / b for a, b in zip(this, that, strict=True)], level)
@@ -133,19 +171,26 @@ def compare(ref: str, names, pairs: int = 5, runs: int = 20, level: float = 0.9)
 
 
 def table(rec: dict) -> list[str]:
-    """Markdown lines of a :func:`compare` record."""
+    """Markdown lines of a :func:`compare` record (per-step columns when it measured them)."""
+    steps = any("step_us" in v for v in rec["controllers"].values())
     lines = [f"Against {rec['ref']} ({rec['pairs']} pairs of processes, {rec['runs_per_process']} "
              f"runs each; ratio this / ref, median and {100 * rec['level']:.0f} % interval over "
-             "the pairs; CPU ms per run, the 40 s lemniscate, set-up = a one-step run):", "",
+             "the pairs; CPU ms per run, the 40 s lemniscate (@python, @mujoco: the first "
+             f"{SHORT_SECONDS:g} s through the Python driver, on the MuJoCo robot), set-up = a "
+             "one-step run" + ("; per step [us] = (run - set-up) / steps" if steps else "")
+             + "):", "",
              "| controller | run this | run ref | run ratio | set-up this | set-up ref "
-             "| set-up ratio |", "|---|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+             "| set-up ratio |" + (" step this | step ref | step ratio |" if steps else ""),
+             "|---|---:|---:|---:|---:|---:|---:|" + ("---:|---:|---:|" if steps else "")]
     for name, v in rec["controllers"].items():
-        r, s = v["run_ms"], v["setup_ms"]
-        lines.append(f"| {name} | {r['this']:.3f} | {r['ref']:.3f} | {r['ratio']:.3f} "
-                     f"[{r['ratio_low']:.3f}, {r['ratio_high']:.3f}] | {s['this']:.3f} "
-                     f"| {s['ref']:.3f} | {s['ratio']:.3f} [{s['ratio_low']:.3f}, "
-                     f"{s['ratio_high']:.3f}] |")  # fmt: skip
+        cells = [name]
+        for key in ("run_ms", "setup_ms", "step_us")[: 3 if steps else 2]:
+            r = v.get(key)
+            cells += (["—"] * 3 if r is None else
+                      [f"{r['this']:.3f}", f"{r['ref']:.3f}", f"{r['ratio']:.3f} "
+                       f"[{r['ratio_low']:.3f}, {r['ratio_high']:.3f}]"])  # fmt: skip
+        lines.append("| " + " | ".join(cells) + " |")
     for name, v in rec.get("this_only", {}).items():
         lines.append(f"| {name} (this tree only) | {v['run_ms']:.3f} | — | — "
-                     f"| {v['setup_ms']:.3f} | — | — |")  # fmt: skip
+                     f"| {v['setup_ms']:.3f} | — | — |" + (" — | — | — |" if steps else ""))
     return lines + [""]

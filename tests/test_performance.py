@@ -454,6 +454,23 @@ def test_median_interval_is_the_binomial_order_statistic(n, level, j):
     assert (med, lo, hi) == (np.median(x), float(j), float(n + 1 - j))
 
 
+def test_against_per_step_and_its_table_columns():
+    """``analysis._against``'s per-step figure is (run - set-up) / steps in us (a run of 2 ms
+    with 0.5 ms set-up over 3000 steps: 0.5 us), and the table shows it beside the run and
+    set-up columns, a row the reference lacks the figure for as dashes (a tree predating it)."""
+    from analysis._against import _per_step, table
+
+    rec = _per_step({"run_ms": {"a": 2.0}, "setup_ms": {"a": 0.5}, "steps": {"a": 3000}})
+    assert rec["step_us"]["a"] == pytest.approx(0.5, rel=1e-12)
+    cell = {"this": 0.5, "ref": 1.0, "ratio": 0.5, "ratio_low": 0.4, "ratio_high": 0.6}
+    lines = table({"ref": "r", "pairs": 5, "runs_per_process": 10, "level": 0.9,
+                   "controllers": {"a": {"run_ms": cell, "setup_ms": cell, "step_us": cell},
+                                   "b": {"run_ms": cell, "setup_ms": cell}}})  # fmt: skip
+    row_a = next(x for x in lines if x.startswith("| a |"))
+    row_b = next(x for x in lines if x.startswith("| b |"))
+    assert row_a.count("0.500 [0.400, 0.600]") == 3 and row_b.endswith("| — | — | — |")
+
+
 def test_check_passes_on_the_committed_record():
     from analysis import performance as perf
 
