@@ -19,6 +19,7 @@ STUDIES: tuple[str, ...] = (
     "jacobians",
     "margins",
     "boundedness",
+    "robots",
     "regimes",
     "calibration",
     "performance",

@@ -128,7 +128,19 @@ def _parser(study) -> argparse.ArgumentParser:
     parser.add_argument("--quick", action="store_true", help="a short version (for tests)")
     parser.add_argument("--workers", type=int, default=None,
                         help="worker processes (default: the usable cores)")  # fmt: skip
+    if _takes_full(study):
+        parser.add_argument("--full", action="store_true",
+                            help="recompute the whole study (otherwise a stored full record is "
+                                 "re-rendered)")  # fmt: skip
     return parser
+
+
+def _takes_full(study) -> bool:
+    """Whether ``study.run`` has a ``full`` option (a study too long for ``wmr reproduce``,
+    which then re-renders its stored record)."""
+    import inspect
+
+    return "full" in inspect.signature(study.run).parameters
 
 
 def main(study, argv: list[str] | None = None) -> int:
@@ -141,7 +153,8 @@ def main(study, argv: list[str] | None = None) -> int:
     matplotlib.use("Agg")  # a command writes figures to files; no display is needed
     args = _parser(study).parse_args(argv)
     t0 = time.perf_counter()
-    record = study.run(args.out, quick=args.quick, workers=args.workers)
+    options = {"full": args.full} if _takes_full(study) else {}
+    record = study.run(args.out, quick=args.quick, workers=args.workers, **options)
     try:
         study.check(record)
     except AssertionError as err:

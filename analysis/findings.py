@@ -137,8 +137,33 @@ def margins(mar: dict, bnd: dict | None) -> Finding:
         dt = scn.load(scn.builtin("lemniscate")).dt  # the boundedness study's scenarios' dt
         text += (f" The DEKF's boundedness constant α of Lemma 2 is at most "
                  f"{fmt(max(alphas), 2)}, so its guaranteed contraction takes "
-                 f"~{fmt(dt / max(alphas), 1)} s: the theorem holds but says nothing practical.")
+                 f"~{fmt(dt / max(alphas), 1)} s to shrink an error by e: no practical bound.")
     return Finding("Are its loops stable, and with what margins?", text, TITLE)
+
+
+def robots(rob: dict) -> Finding:
+    """Where the kinematic model stops predicting the physics robot, and which controller to use
+    on which robot model (the ladder; the regime study adds the tuned arms)."""
+    from analysis import _robots_views as views
+    from analysis.robots import TITLE
+
+    lad = rob["ladder"]
+    rel = [lad[t]["mujoco"]["cells"][c]["mean"] / lad[t]["kinematic"]["cells"][c]["mean"]
+           for t in lad for c in rob["controllers"]
+           if lad[t]["mujoco"]["cells"][c]["mean"] and lad[t]["kinematic"]["cells"][c]["mean"]]
+    slid = [p["demand"] for p in rob["sliding"] if p["sliding"]]
+    best = views.best_per_rung(rob)
+    names = {r: sorted({c for t in best[r].values() for c in t}) for r in ("kinematic", "mujoco")}
+    changes = sum(1 for rr in rob["order_changes"].values() for v in rr.values() if v)
+    text = (f"On the MuJoCo robot every controller's error after the transient is "
+            f"{min(rel):.2f}–{max(rel):.2f} times its error on the kinematic unicycle "
+            f"({rob['seeds']} seeds, the paper's trajectories). It slides once the lateral "
+            f"acceleration reaches {min(slid):.2f} of the Coulomb bound μ g. "
+            "The best at the defaults is "
+            + " ≈ ".join(controllers.label(c) for c in names["kinematic"]) + " on the unicycle and "
+            + " ≈ ".join(controllers.label(c) for c in names["mujoco"]) + " on MuJoCo "
+            f"(ties by paired test), with {changes} significant order reversals between rungs.")
+    return Finding("Which controller on which robot?", text, TITLE, "robots_ladder.png")
 
 
 #: (records read, the finding's function) in report order; the first record is required, the
@@ -147,6 +172,7 @@ FINDINGS: tuple[tuple[tuple[str, ...], Callable[..., Finding]], ...] = (
     (("reproduction",), reproduction),
     (("jacobians",), jacobians),
     (("margins", "boundedness"), margins),
+    (("robots",), robots),
 )
 
 

@@ -1,0 +1,147 @@
+"""The robot ladder (issue 20, item 3): its physics checks against closed forms and planted
+cases, its statistics on synthetic records, the quick study end to end, and the committed
+record (checks, renders as in the report, a sample of its runs reruns to the same numbers)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from analysis import _robots_views as views
+from analysis import prose, robots
+from wmr import scenario as scn
+from wmr.sim import simulate
+
+PAPER = Path(__file__).resolve().parents[1] / "paper"
+COMMITTED = PAPER / "results" / "robots.json"
+needs_record = pytest.mark.skipif(not COMMITTED.exists(), reason="no committed robots record")
+
+
+# --- physics ---------------------------------------------------------------------------------
+
+
+def test_a_steady_circle_well_inside_the_coulomb_bound_rolls_without_slip():
+    """True and nominal radii equal: the achieved (v, w) is the command, no side-slip."""
+    p = robots.sliding_point(1.0, 0.5, 1.0)
+    assert p["demand"] == pytest.approx(0.5 / 9.81)
+    assert p["v_actual"] == pytest.approx(0.5, rel=1e-2) and p["w_actual"] == pytest.approx(
+        1.0, rel=1e-2)
+    assert p["slip_angle"] < 0.01 and not p["sliding"]
+
+
+def test_a_circle_past_the_coulomb_bound_slides():
+    """At twice the lateral acceleration friction can give, the robot slides outward and does
+    not reach the commanded speed."""
+    p = robots.sliding_point(0.1, 1.0, 2.0)
+    assert p["demand"] > 2.0 and p["sliding"]
+    assert p["v_actual"] < 0.9 * 1.0
+
+
+def test_the_servo_lag_is_the_63_percent_rise_of_a_first_order_response():
+    """The nominal servo's small-step response rises within a few physics steps; a saturating
+    large step is slower (an acceleration limit, not a lag)."""
+    small, large = robots.servo_lag(), robots.servo_lag(v=0.5, w=0.5)
+    assert small["final"] == pytest.approx([0.05, 0.05], rel=2e-2)
+    assert 0 < small["tau_v"] < large["tau_v"]
+    assert small["timestep"] == 0.002
+
+
+# --- statistics on synthetic records -----------------------------------------------------------
+
+
+def test_clopper_pearson_of_zero_events_has_the_closed_form_upper_bound():
+    lo, hi = robots.clopper_pearson(0, 20)
+    assert lo == 0.0 and hi == pytest.approx(1 - 0.025 ** (1 / 20), rel=1e-9)
+    lo, hi = robots.clopper_pearson(20, 20)
+    assert hi == 1.0 and lo == pytest.approx(0.025 ** (1 / 20), rel=1e-9)
+
+
+def _pair(diff, significant):
+    return {"n": 20, "mean_diff": diff, "p": 0.001, "p_holm": 0.001 if significant else 0.5,
+            "significant": significant}
+
+
+def test_order_changes_needs_significance_on_both_rungs_and_opposite_signs():
+    a = {"x vs y": _pair(-1.0, True), "x vs z": _pair(-1.0, True), "y vs z": _pair(1.0, False)}
+    b = {"x vs y": _pair(+1.0, True), "x vs z": _pair(-2.0, True), "y vs z": _pair(-1.0, True)}
+    assert robots.order_changes(a, b) == ["x vs y"]
+    b["x vs y"]["significant"] = False
+    assert robots.order_changes(a, b) == []
+
+
+def test_best_per_rung_keeps_the_controllers_not_told_apart():
+    cells = {"pid": {"mean": 1.0}, "backstepping": {"mean": 1.1}, "adaptive-pid": {"mean": 2.0}}
+    pairs = {"pid vs backstepping": _pair(-0.1, False), "pid vs adaptive-pid": _pair(-1.0, True),
+             "backstepping vs adaptive-pid": _pair(-0.9, True)}  # fmt: skip
+    rec = {"rungs": ["kinematic"], "ladder": {"t": {"kinematic": {
+        "cells": cells, "ranking": ["pid", "backstepping", "adaptive-pid"], "pairs": pairs}}}}
+    assert views.best_per_rung(rec) == {"kinematic": {"t": ["pid", "backstepping"]}}
+
+
+# --- the study ---------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    out = tmp_path_factory.mktemp("robots")
+    return out, robots.run(out, quick=True, workers=1)
+
+
+def test_the_quick_study_checks_renders_and_opens_with_its_answer(quick):
+    out, record = quick
+    robots.check(record)
+    text = robots.render(record)
+    opening = text.split("\n\n")[1]
+    assert 1 <= len(prose.sentences(opening)) <= 5
+    assert prose.long_sentences(text) == []
+    for name in record["figures"]:
+        assert (out / "figures" / name).stat().st_size > 10_000
+    assert (out / "tables" / "robots.md").read_text() == robots.table(record)
+
+
+def test_the_fitted_plant_is_a_scenario_table(quick):
+    _, record = quick
+    for traj, f in record["fitted"].items():
+        sc = scn.loads(scn.builtin(traj).read_text() + "\n" + f["toml"], source="fitted")
+        assert sc.plant.model == "kinematic"
+        assert math.isfinite(f["values"]["v_gain"])
+
+
+def test_a_diverged_run_is_counted_not_averaged():
+    class R:
+        def __init__(self, seed, x, diverged):
+            self.seed, self.tail_position, self.diverged = seed, x, diverged
+
+    cell = robots._cell([R(0, 0.01, False), R(1, math.nan, True), R(2, 0.03, False)])
+    assert cell["diverged"] == 1 and cell["stable"] == 2
+    assert cell["mean"] == pytest.approx(0.02) and set(cell["values"]) == {0, 2}
+
+
+@needs_record
+def test_the_committed_record_checks_and_renders_as_in_the_report():
+    record = json.loads(COMMITTED.read_text())
+    robots.check(record)
+    assert not record["quick"] and record["seeds"] >= 20
+    assert robots.render(record) in (PAPER / "report.md").read_text()
+    assert robots.table(record) == (PAPER / "tables" / "robots.md").read_text()
+
+
+@needs_record
+@pytest.mark.parametrize("traj, rung, controller, seed", [
+    ("lemniscate", "mujoco", "backstepping", 3),
+    ("sinusoid", "lagged-velocity", "adaptive-pid", 7),
+])  # fmt: skip
+def test_a_sample_of_the_committed_runs_reruns_to_the_same_numbers(traj, rung, controller, seed):
+    record = json.loads(COMMITTED.read_text())
+    sc = robots._scenario(traj, rung, robots.RUNGS[rung], None)
+    r = simulate(sc, controller, seed, keep_trajectory=False)
+    assert r.rmse_after_transient["position"] == \
+        record["ladder"][traj][rung]["cells"][controller]["values"][str(seed)]
+    assert np.isfinite(r.rmse_after_transient["position"])
