@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["PROGRAM", "DRIVER_ROWS", "worktree", "time_tree", "compare", "median_interval",
-           "table"]
+__all__ = ["NOTE", "PROGRAM", "DRIVER_ROWS", "worktree", "time_tree", "compare",
+           "median_interval", "table"]
 
 #: The timing program, run in a fresh interpreter against the ``wmr`` on its path.  It uses only
 #: what every version of the suite has (scenario.load/builtin, sim.simulate).  A variant
@@ -194,3 +194,15 @@ def table(rec: dict) -> list[str]:
         lines.append(f"| {name} (this tree only) | {v['run_ms']:.3f} | — | — "
                      f"| {v['setup_ms']:.3f} | — | — |" + (" — | — | — |" if steps else ""))
     return lines + [""]
+
+
+#: The performance record's note on this measurement (``analysis.performance.notes``).
+NOTE = (
+    "against (with wmr bench --against REF): analysis._against; this tree and a git "
+    "worktree of REF timed in fresh processes in turn (ABBA), per-run and one-step CPU medians; "
+    "ratio = median over the pairs of this / REF with a distribution-free interval (order "
+    "statistics).  adaptive-pid~approximate is APID without the exact gradient's heading term "
+    "(this tree only when REF predates the setting): the difference to adaptive-pid is the "
+    "exact gradient's own cost.  Rows @python and @mujoco: 2 s runs through the Python driver and "
+    "on the shipped MuJoCo robot; per step = (run - set-up) / steps."
+)

@@ -197,6 +197,8 @@ def python_control(lem, steps: int, repeats: int, subject: str) -> tuple[dict, d
 
 
 def python_control_table(rec: dict, subject: str) -> list[str]:
+    """The performance record's python-control table (``subject``: the controller whose closed
+    loop the nlsys runs)."""
     lines = ["| python-control nlsys | µs/step | ratio to the kernel | max abs q difference |",
              "|---|---:|---:|---:|"]  # fmt: skip
     for key, v in rec["python_control"].items():

@@ -22,7 +22,7 @@ from wmr import loop, metrics
 from wmr.ekf import pose_predict, pose_work
 from wmr.sim import simulate
 
-__all__ = ["PHASES", "breakdown", "table"]
+__all__ = ["NOTE", "PHASES", "breakdown", "table"]
 
 #: The phases, in the step's order.
 PHASES = ("sense", "law", "plant", "predict", "score")
@@ -147,3 +147,13 @@ def table(phases: dict) -> list[str]:
     for name, v in phases.items():
         lines.append(f"| {name} | " + " | ".join(f"{v[c]:.3f}" for c in cols) + " |")
     return lines + [""]
+
+
+#: The performance record's note on this measurement (``analysis.performance.notes``).
+NOTE = (
+    "phases: analysis._phases; each phase of wmr.loop (sense = measurement and "
+    "estimate, law with saturation, plant, the pose filter's predict, score) timed alone in a "
+    "jitted loop over the inputs a kept lemniscate run gave it, the minimum of interleaved "
+    "rounds, CPU time; kernel is loop.run of the same run.  run_overhead_ms: CPU time of a "
+    "one-step run (prepare, the kernel's call, the record), the minimum of interleaved repeats."
+)

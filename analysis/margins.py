@@ -36,7 +36,7 @@ import sys
 
 import numpy as np
 
-from analysis import common
+from analysis import _margins_nmpc, common
 from analysis._margins_figures import (
     along_runs_figure,
     printed_rotation_figure,
@@ -93,10 +93,8 @@ FLOQUET_SCENARIOS = ("lemniscate", "sinusoid")  # periodic (sinusoid-perturbed: 
 
 
 def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
-    """Compute the study, write its record, table and figures under ``out``; return the record.
-
-    ``workers`` is accepted for the common study signature; everything runs in this process.
-    """
+    """Compute the study (nmpc's rows: ``analysis._margins_nmpc``), write its record, table and
+    figures under ``out``; return the record (``workers``: the common signature; runs here)."""
     every, n_grid = (QUICK_EVERY, QUICK_GRID) if quick else (EVERY, 81)
     scenarios = {name: scn.load(scn.builtin(name)) for name in scn.PAPER_SCENARIOS}
     op = operating_point(scenarios["sinusoid"], "mean")
@@ -122,6 +120,7 @@ def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
     record["floquet"] = {"how": floquet.HOW, "circle_closed_form": floquet.circle_check(curved),
                          **{n: floquet.analyse(scenarios[n]) for n in FLOQUET_SCENARIOS}}
     record["cross_checks"] = cc
+    record["nmpc"] = _margins_nmpc.margins(ops)
     record["figures"] = [
         common.save_figure(out, "margins_stability_region.png", stability_region_figure(regions)),
         common.save_figure(out, "margins_along_runs.png", along_runs_figure(along)),
@@ -510,6 +509,7 @@ def table(record: dict) -> str:
                                                             strict=True)))
                                   for name, label in (("pid", "PID (eq. 7, fixed)"),
                                                       ("backstepping", "BSC"))])  # fmt: skip
+    lines += _margins_nmpc.table_lines(record)  # records older than issue 21 have none
     fq = record.get("floquet")  # records older than issue 14 have none
     return "\n".join(lines + (_floquet_table(fq) if fq else [])) + "\n"
 

@@ -24,6 +24,9 @@ Measured
   serial, after warm-up;
 - ``monte_carlo_1000_s``: 1,000 ``iapid-nn-dekf`` lemniscate runs (seeds 0..999) on ``workers``
   processes with a progress bar (``null`` with ``quick``), rows checked equal to the serial path;
+- ``python_controllers``: the Python-level controllers (``nmpc``) on a few runs of their own, the
+  loop's cost per step and the distribution of the controller's own step
+  (``analysis._py_controller_bench``);
 - cost against the number of weights (hidden units) and against the number of workers;
 - peak resident memory (``ru_maxrss`` of this process and of its children).
 
@@ -51,7 +54,7 @@ import time
 
 import numpy as np
 
-from analysis import _against, _bench, _floor, _phases, _sweep_bench, common
+from analysis import _against, _bench, _floor, _phases, _py_controller_bench, _sweep_bench, common
 from analysis._bench import clocks, per_step, steps_done
 from wmr import controllers, loop, sim
 from wmr import scenario as scn
@@ -77,6 +80,7 @@ TARGETS = {
                         "adaptive-nn": 3.0},
     "iapid_floor_ratio_max": 1.5,
     "run_overhead_ms_max": 0.05,
+    "nmpc_step_median_ms_max": 0.5,  # issue 21: nmpc's own step, median
 }
 #: The targets :func:`check` asserts (ratios and correctness); absolute wall-time misses are
 #: recorded only.
@@ -120,6 +124,7 @@ def run(out, *, quick: bool = False, workers: int | None = None, against: str | 
     rec.update(_warmup(lem, prob))
     costs, over_floor = _step_costs(lem, prob, repeats)
     rec.update(costs)
+    rec["python_controllers"] = _py_controller_bench.measure(lem, quick)
     rec["warmup_compile_s"] = {k: max(0.0, rec["warmup_s"][k] - v / _US * lem.n_steps)
                                for k, v in rec["us_per_step"].items()}  # fmt: skip
     rss = {"after_warmup_and_step_timings": _bench.rss_mb()}
@@ -192,7 +197,8 @@ def _warmup(lem, prob) -> dict:
     """The first ``simulate`` of each controller (compilation included) and the floor kernels'
     first calls; whether the loop kernels came from the disk cache."""
     names = controllers.NAMES
-    kernels = {name: loop.kernel(name, controllers.get(name).law) for name in names}
+    kernels = {name: loop.kernel(name, controllers.get(name).law) for name in names
+               if controllers.get(name).compiled}  # fmt: skip
     fresh = all(len(k.signatures) == 0 for k in kernels.values())
     warm = {}
     for name in names:
@@ -215,8 +221,9 @@ def _warmup(lem, prob) -> dict:
 
 def _step_costs(lem, prob, repeats: int) -> tuple[dict, float]:
     """Per-step cost of every controller, the floor and the library's weight update, interleaved
-    (the floor right after the subject); and the median paired CPU ratio subject / floor."""
-    names = controllers.NAMES
+    (the floor right after the subject); and the median paired CPU ratio subject / floor.  The
+    Python-level controllers are timed apart (``analysis._py_controller_bench``)."""
+    names = [n for n in controllers.NAMES if controllers.get(n).compiled]
     per = {name: [] for name in names}
     floor_t, generic_t, lib_t, paired = [], [], [], []
     for _ in range(repeats):
@@ -399,6 +406,9 @@ def targets_met(rec: dict) -> dict:
         "run_overhead_25": rec["run_overhead_ms"] <= t["run_overhead_ms_max"],
         **{f"us_per_step_{name}": rec["cpu_us_per_step"][name] <= limit
            for name, limit in t["us_per_step_max"].items() if name in rec["cpu_us_per_step"]},
+        "nmpc_step_median": None if not (rec.get("python_controllers") or {}).get("nmpc")
+        else rec["python_controllers"]["nmpc"]["step_ms"]["median"]
+        <= t["nmpc_step_median_ms_max"],
     }  # fmt: skip
     if rec["quick"]:
         met["quick_under_2_min"] = rec["elapsed_s"] < t["quick_total_s_max"]
@@ -459,25 +469,13 @@ def notes(rec: dict) -> list[str]:
         "median of the paired CPU-time ratios.",
         "The loop is compiled once per controller (wmr.loop.kernel) and cached on disk: "
         "advance_cache counts the loads from the cache (hits) and compilations (misses) of this "
-        "process.",
+        "process.", *([_py_controller_bench.NOTE] if rec.get("python_controllers") else []),
         *(note for key, note in _NOTES_25.items() if key in rec),
     ]
 
 
 #: Notes on what only newer records measure (shown when the record has it).
-_NOTES_25 = {
-    "phases": "phases: analysis._phases; each phase of wmr.loop (sense = measurement and "
-    "estimate, law with saturation, plant, the pose filter's predict, score) timed alone in a "
-    "jitted loop over the inputs a kept lemniscate run gave it, the minimum of interleaved "
-    "rounds, CPU time; kernel is loop.run of the same run.  run_overhead_ms: CPU time of a "
-    "one-step run (prepare, the kernel's call, the record), the minimum of interleaved repeats.",
-    "against": "against (with wmr bench --against REF): analysis._against; this tree and a git "
-    "worktree of REF timed in fresh processes in turn (ABBA), per-run and one-step CPU medians; "
-    "ratio = median over the pairs of this / REF with a distribution-free interval (order "
-    "statistics).  adaptive-pid~approximate is APID without the exact gradient's heading term "
-    "(this tree only when REF predates the setting): the difference to adaptive-pid is the "
-    "exact gradient's own cost.",
-}
+_NOTES_25 = {"phases": _phases.NOTE, "against": _against.NOTE}
 
 
 def _targets_table(rec: dict) -> list[str]:
@@ -513,6 +511,9 @@ def _targets_table(rec: dict) -> list[str]:
           f"| {rec['plant'][name]['ratio']:.2f}x | <= {t['plant_ratio_max']:g}x "
           f"| {ok('plant_overhead')} |" for name in ("backstepping", SUBJECT) if "plant" in rec),
         *_targets_25(rec, ok),
+        *(f"| nmpc's step, median [ms] | {v['step_ms']['median']:.3f} "
+          f"| <= {t['nmpc_step_median_ms_max']:g} | {ok('nmpc_step_median')} |"
+          for v in [(rec.get("python_controllers") or {}).get("nmpc")] if v),
         "",
     ]  # fmt: skip
 
@@ -562,7 +563,7 @@ def tables(rec: dict) -> str:
         f"load average {mach['load_average_start'][0]:.2f}"
         f" -> {mach['load_average_end'][0]:.2f}; quick = {rec['quick']}.", "",
     ]  # fmt: skip
-    lines += _targets_table(rec) + _costs_table(rec)
+    lines += _targets_table(rec) + _costs_table(rec) + _py_controller_bench.table_lines(rec)
     if "phases" in rec:
         lines += ["CPU µs per step, phase by phase (each phase alone on a real run's inputs; "
                   "kernel = the whole run, set-up included; loop = kernel - sum):", "",

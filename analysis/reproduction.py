@@ -41,9 +41,9 @@ from wmr.io import atomic_write_text, write_csv
 from wmr.metrics import TRANSIENT
 from wmr.study import ROW_HEADER, Job, Row, run_jobs
 
-__all__ = ["STEM", "TITLE", "PAPER_RMSE", "VARIANTS", "REGIMES_SECTION", "build_jobs",
-           "summarise", "gain_excursions", "adaptation_defaults", "table_markdown", "table_latex",
-           "run", "check", "render"]  # fmt: skip
+__all__ = ["STEM", "TITLE", "PAPER_RMSE", "VARIANTS", "REGIMES_SECTION", "NOT_IN_PAPER",
+           "build_jobs", "summarise", "gain_excursions", "adaptation_defaults", "table_markdown",
+           "table_latex", "run", "check", "render"]  # fmt: skip
 
 STEM = "reproduction"
 TITLE = "Tables 1–3: the paper beside this reproduction"
@@ -297,41 +297,76 @@ def check(record: dict) -> None:
 # --- Rendering: the tables and the report's sections, from the record ------------------------
 
 
+#: The mark of a table row whose controller is not in the paper (its "paper" cell is empty).
+NOT_IN_PAPER = "†"
+_NOT_IN_PAPER_NOTE = (f"{NOT_IN_PAPER} not in the paper: a controller this suite adds "
+                      "(no published value to compare with)")  # fmt: skip
+
+
+def _table_names(record: dict, scenario: str) -> list[str]:
+    """The rows of Tables 1-3: the paper's controllers in table order, then the other
+    registered controllers with runs in the record (marked :data:`NOT_IN_PAPER`)."""
+    runs = record["scenarios"][scenario]["runs"]
+    paper = [n for n in controllers.PAPER_NAMES if n in runs]
+    return paper + [n for n in controllers.NAMES if n in runs and n not in paper]
+
+
 def _table_cells(record: dict, scenario: str):
-    """Per row of Tables 1-3: (controller, axis index, axis, paper's RMSE, our mean, our std,
-    "diverged/seeds"), the paper's controllers in table order."""
+    """Per row of Tables 1-3: (controller, axis index, axis, paper's RMSE or None, our mean,
+    our std, "diverged/seeds")."""
     entry = record["scenarios"][scenario]
-    for name in (n for n in controllers.PAPER_NAMES if n in entry["runs"]):
+    for name in _table_names(record, scenario):
         rec = entry["runs"][name]["default"]
         for i, axis in enumerate(AXES):
-            yield (name, i, axis, PAPER_RMSE[scenario][name][i], rec[axis]["mean"],
-                   rec[axis]["std"], f"{rec['n_diverged']}/{rec['n_seeds']}")  # fmt: skip
+            p = PAPER_RMSE[scenario][name][i] if name in PAPER_RMSE[scenario] else None
+            yield (name, i, axis, p, rec[axis]["mean"], rec[axis]["std"],
+                   f"{rec['n_diverged']}/{rec['n_seeds']}")  # fmt: skip
+
+
+def _row_label(name: str, scenario: str) -> str:
+    mark = "" if name in PAPER_RMSE[scenario] else f" {NOT_IN_PAPER}"
+    return controllers.label(name) + mark
 
 
 def table_markdown(record: dict, scenario: str) -> str:
-    """Table 1, 2 or 3 (``scenario``) in Markdown: the paper's RMSE beside ours and the ratio."""
+    """Table 1, 2 or 3 (``scenario``) in Markdown: the paper's RMSE beside ours and the ratio;
+    the controllers the paper does not have below, marked."""
     md = [f"Table {TABLE_NUMBER[scenario]} ({scenario}): RMSE, paper vs this reproduction "
           f"(mean ± std over seeds, ratio = ours / paper)", "",
           "| controller | axis | paper | ours | ratio | diverged |", "|---|---|---|---|---|---|"]
+    extra = False
     for name, _, axis, p, m, s, div in _table_cells(record, scenario):
-        ours, ratio = ("—", "—") if m is None else (f"{m:.4f} ± {s:.4f}", f"{m / p:.2f}")
-        md.append(f"| {controllers.label(name)} | {axis} | {p:.4f} | {ours} | {ratio} | {div} |")
+        extra = extra or p is None
+        ours = "—" if m is None else f"{m:.4f} ± {s:.4f}"
+        ratio = "—" if m is None or p is None else f"{m / p:.2f}"
+        paper = "—" if p is None else f"{p:.4f}"
+        md.append(f"| {_row_label(name, scenario)} | {axis} | {paper} | {ours} | {ratio} "
+                  f"| {div} |")  # fmt: skip
+    if extra:
+        md += ["", _NOT_IN_PAPER_NOTE + "."]
     return "\n".join(md) + "\n"
 
 
 def table_latex(record: dict, scenario: str) -> str:
-    """Table 1, 2 or 3 (``scenario``) as a LaTeX booktabs tabular."""
+    """Table 1, 2 or 3 (``scenario``) as a LaTeX booktabs tabular (the controllers the paper
+    does not have below, marked with a dagger)."""
     tex = [r"\begin{tabular}{llrrrr}", r"\toprule",
            r"Controller & Axis & Paper & Ours (mean $\pm$ std) & Ratio & Diverged \\",
            r"\midrule"]  # fmt: skip
+    names = _table_names(record, scenario)
     for name, i, axis, p, m, s, div in _table_cells(record, scenario):
-        ours, ratio = ("--", "--") if m is None else (f"{m:.4f} $\\pm$ {s:.4f}", f"{m / p:.2f}")
-        first = controllers.label(name) if i == 0 else ""
+        ours = "--" if m is None else f"{m:.4f} $\\pm$ {s:.4f}"
+        ratio = "--" if m is None or p is None else f"{m / p:.2f}"
+        paper = "--" if p is None else f"{p:.4f}"
+        mark = "" if p is not None else r"$^\dagger$"
+        first = controllers.label(name) + mark if i == 0 else ""
         sym = "\\theta" if axis == "theta" else axis
-        tex.append(f"{first} & ${sym}$ & {p:.4f} & {ours} & {ratio} & {div} \\\\")
+        tex.append(f"{first} & ${sym}$ & {paper} & {ours} & {ratio} & {div} \\\\")
         if i == len(AXES) - 1:
-            tex.append(r"\midrule" if name != controllers.PAPER_NAMES[-1] else r"\bottomrule")
+            tex.append(r"\midrule" if name != names[-1] else r"\bottomrule")
     tex.append(r"\end{tabular}")
+    if names[-1] not in PAPER_RMSE[scenario]:
+        tex.append(r"$^\dagger$ " + _NOT_IN_PAPER_NOTE.split(" ", 1)[1] + ".")
     return "\n".join(tex) + "\n"
 
 

@@ -418,12 +418,16 @@ def test_quick_run_writes_the_study_and_passes_check(tmp_path):
     recorded = {"paper_runs_one_seed", "monte_carlo_1000", "quick_under_2_min", "plant_overhead",
                 "sweep_local_efficiency", "sweep_dask_efficiency", "large_sweep",
                 "iapid_floor_ratio_25", "run_overhead_25",  # issue 25: recorded, not asserted
-                *(f"us_per_step_{n}" for n in perf.TARGETS["us_per_step_max"])}
+                *(f"us_per_step_{n}" for n in perf.TARGETS["us_per_step_max"]), "nmpc_step_median"}
     sweep = stored["sweep"]  # issue 13: measured on a local cluster and a loopback scheduler
     assert sweep["rows_equal"] is True and set(sweep["controllers"]) == {"iapid-nn-dekf", "pid"}
     assert 0 < sweep["local"]["efficiency"] and 0 < sweep["dask"]["efficiency"]
     assert stored["targets_met"]["large_sweep"] is None  # quick: no large sweep
     assert set(stored["targets_met"]) == set(perf.CHECKED) | recorded
+    nmpc = stored["python_controllers"]["nmpc"]  # issue 21: its own step, with percentiles
+    assert nmpc["runs"] == 2 and nmpc["steps"] == 2 * 4000 and "nmpc" not in stored["us_per_step"]
+    assert 0 < nmpc["step_ms"]["median"] <= nmpc["step_ms"]["p95"] <= nmpc["step_ms"]["max"]
+    assert nmpc["step_ms"]["median"] * 1e3 < nmpc["us_per_step"]  # the loop around it costs too
     for name in ("backstepping", "iapid-nn-dekf"):  # issue 12: the plant's cost is measured
         p = stored["plant"][name]
         assert p["ratio"] > 0.5

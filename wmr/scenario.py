@@ -341,9 +341,15 @@ def _build(data: Mapping[str, Any], source: str) -> Scenario:
     for cname, table in ctrl_tables.items():
         check(cname in controllers.REGISTRY, f"controllers.{cname}", None,
               f"unknown controller (known: {', '.join(controllers.NAMES)})")  # fmt: skip
-        ctrl_settings[cname] = from_table(
+        ctrl_settings[cname] = st = from_table(
             controllers.get(cname).Settings, table, f"controllers.{cname}"
         )
+        if hasattr(st, "check_dt"):  # settings that must fit the control period (nmpc's h)
+            try:
+                st.check_dt(dt)
+            except SettingError as err:
+                key = f"controllers.{cname}.{err.key}"
+                raise SettingError(key, err.value, err.reason) from None
     return Scenario(
         name=name, duration=duration, dt=dt, initial_pose=pose_t,
         reference=ReferenceSpec(kind, params), integrator=integrator, seed=seed, noise=noise,

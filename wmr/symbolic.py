@@ -5,9 +5,13 @@ This module is the **independent oracle** for the library's hand-derived Jacobia
 mathematics (with the errata of ``paper/reproduction-notes.md`` §3), and every Jacobian is
 obtained by CasADi's algorithmic differentiation (``casadi.jacobian`` / ``casadi.jtimes``),
 never by transcribing a derivative.  It deliberately imports nothing numeric from ``wmr``, and
-nothing in the closed loop imports it: the simulator, controllers and filters run on the jitted
-kernels of :mod:`wmr.kinematics`, :mod:`wmr.nn`, ...; tests and analyses compare those kernels
-with the functions built here.
+no library module imports it at import time (``tests/test_symbolic.py``): the simulator, the
+compiled controllers and the filters run on the jitted kernels of :mod:`wmr.kinematics`,
+:mod:`wmr.nn`, ...; tests and analyses compare those kernels with the functions built here.  One
+closed-loop user loads it on first use: the Python-level ``nmpc`` controller
+(``wmr.controllers.nmpc.problem``) builds its prediction model from :func:`step_function` when
+its optimal control problem is first built (an optimiser needs the symbolic model; its tests
+check that model against the jitted ``wmr.kinematics.step``, so the oracle role is kept).
 
 Each model is exposed as a :class:`casadi.Function` (SX graph) with named inputs and outputs,
 built on first use and cached (``functools.cache``).  Call them with numpy arrays; outputs

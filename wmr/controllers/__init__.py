@@ -13,7 +13,9 @@ The contract of a controller module, one row of :data:`REGISTRY` each (a test ru
 row, ``tests/test_registry.py``):
 
 1. ``Settings``: a frozen dataclass of validated settings with defaults (``wmr._settings``);
-   the scenario table ``[controllers.<name>]`` is converted into it.
+   the scenario table ``[controllers.<name>]`` is converted into it.  Settings that must fit the
+   control period define ``check_dt(dt)`` (raising ``SettingError``); the scenario loader calls
+   it with the file's ``dt`` (``nmpc``'s prediction step).
 2. ``pack(settings, scenario, rng) -> (p, s, theta, P)``: the law's inputs from the settings
    (``rng`` initialises network weights; nothing else may draw from it).
 3. ``law``: the jitted law above.  It must saturate its own output when it remembers the input
@@ -42,7 +44,8 @@ from dataclasses import dataclass, field, make_dataclass
 
 import numpy as np
 
-from wmr.controllers import adaptive_bsc, adaptive_nn, backstepping, iapid_nn_dekf, pid
+from wmr.controllers import adaptive_bsc, adaptive_nn, backstepping, iapid_nn_dekf, nmpc, pid
+from wmr.controllers.stopped import ControllerStopped
 
 __all__ = ["Controller", "PyController", "ControllerStopped", "REGISTRY", "NAMES", "BUILTIN_NAMES",
            "ORACLE_NAMES", "PAPER_NAMES", "get", "label", "colour", "register", "unregister"]
@@ -65,12 +68,6 @@ class Controller:
 
     #: Whether the law is a jitted function the compiled kernel can inline.
     compiled = True
-
-
-class ControllerStopped(RuntimeError):
-    """Raised by a :class:`PyController`'s ``step`` to stop the run with a stated cause (e.g. an
-    optimiser that failed too often in a row): the run is recorded as stopped at that step with
-    ``cause = "controller stopped: <message>"``, like a divergence, never as a crash."""
 
 
 @dataclass(frozen=True)
@@ -182,6 +179,8 @@ REGISTRY: dict[str, Controller] = {
         Controller("adaptive-bsc", adaptive_bsc.Settings, adaptive_bsc.pack, adaptive_bsc.law,
                    adaptive_bsc.final_state, adaptive_bsc.STATE_NAMES, uses_estimator=False,
                    label="Adaptive BSC", colour="tab:green"),
+        PyController("nmpc", nmpc.make, nmpc.Settings, label="NMPC", colour="tab:purple",
+                     uses_estimator=False, state_names=nmpc.STATE_NAMES),
         Controller("iapid-oracle", iapid_nn_dekf.Settings, iapid_nn_dekf.pack_oracle,
                    iapid_nn_dekf.law, iapid_nn_dekf.final_state, iapid_nn_dekf.STATE_NAMES,
                    uses_estimator=True, label="IAPID (oracle identifier)", colour="tab:cyan",
