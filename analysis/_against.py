@@ -48,6 +48,8 @@ for name in names:
     base, _, variant = head.partition("~")
     if base not in controllers.REGISTRY:
         continue
+    if not mode and not getattr(controllers.get(base), "compiled", True):
+        continue  # a Python-level controller (nmpc): its own bench row times it
     sc, driver = lem, None
     if mode == "python":
         sc, driver = dataclasses.replace(lem, duration=short_s), "python"

@@ -113,11 +113,13 @@ def _one_round(scenario, name, x, laws, halves) -> dict:
 
 
 def breakdown(scenario, names, repeats: int = 5) -> dict:
-    """``{controller: {phase: CPU µs per step, ..., "sum", "kernel", "loop"}}``: the least
+    """``{controller: {phase: CPU µs per step, ..., "sum", "kernel", "loop"}}`` for the compiled
+    controllers of ``names`` (a Python-level one, nmpc, has no kernel to take apart): the least
     disturbed (minimum) of ``repeats`` interleaved rounds; ``kernel`` is a whole run (its
     per-run set-up included, spread over the steps)."""
     from wmr import controllers
 
+    names = [n for n in names if controllers.get(n).compiled]  # a Python-level law has no phases
     x = {name: _inputs(scenario, name, 0) for name in names}
     laws = {name: _law_loop(controllers.get(name).law) for name in names}
     halves = {}

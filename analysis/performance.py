@@ -258,9 +258,9 @@ def _run_overhead(lem, repeats: int) -> dict:
     """CPU milliseconds of one run outside its steps (a one-step run: ``prepare``, the kernel's
     call, the record), per controller, interleaved; the minimum over repeats."""
     one = dataclasses.replace(lem, duration=lem.dt)
-    ov = {name: [] for name in controllers.NAMES}
+    ov = {name: [] for name in controllers.NAMES if controllers.get(name).compiled}
     for _ in range(3 * repeats):  # short: more samples
-        for name in controllers.NAMES:
+        for name in ov:
             t0 = clocks()
             sim.simulate(one, name, 0, keep_trajectory=False)
             ov[name].append(per_step(t0))
