@@ -32,7 +32,11 @@ __all__ = [
     "cold_process_first_run",
     "time_python_control",
     "time_python_control_overhead",
+    "best",
+    "median",
+    "python_control",
     "python_control_table",
+    "weights_figure",
 ]
 
 
@@ -157,6 +161,41 @@ def time_python_control_overhead(nx: int, steps: int, dt: float, repeats: int) -
     return times
 
 
+def best(samples, clock: int = 0) -> float:
+    """Minimum over repeats [µs] of the ``clock`` (0 wall, 1 CPU) of (wall, CPU) samples [s]."""
+    return min(x[clock] for x in samples) * 1e6
+
+
+def median(samples, clock: int = 0) -> float:
+    """Median over repeats [µs] of the ``clock`` of (wall, CPU) samples [s]."""
+    return float(np.median([x[clock] for x in samples])) * 1e6
+
+
+def python_control(lem, steps: int, repeats: int, subject: str) -> tuple[dict, dict]:
+    """The closed loop as a python-control nlsys (``wmr.nlsys``) on the first ``steps`` steps of
+    the lemniscate, each repeat timed beside a kernel run; and python-control's own cost per
+    step (a copy-only nlsys of the same state size)."""
+    short = dataclasses.replace(lem, duration=steps * lem.dt)
+    pc, overhead = {}, {}
+    for controller in (subject, "backstepping"):
+        subject = controller == subject
+        t_pc, t_k, err, t_copy, nx = time_python_control(short, controller, repeats, lem,
+                                                                copy_only=subject)  # fmt: skip
+        pc[f"{controller}/jit"] = {
+            "us_per_step": best(t_pc), "us_per_step_median": median(t_pc),
+            "cpu_us_per_step": best(t_pc, 1), "kernel_us_per_step_beside": best(t_k),
+            "kernel_cpu_us_per_step_beside": best(t_k, 1), "steps": steps,
+            "max_abs_q_difference": err,
+            "ratio": float(np.median([a[1] / b[1] for a, b in zip(t_pc, t_k, strict=True)])),
+            "ratio_wall_min_over_min": best(t_pc) / best(t_k),
+        }  # fmt: skip
+        if subject:
+            overhead = {"n_states": nx, "copy_only_nlsys_us_per_step": best(t_copy),
+                        "copy_only_nlsys_cpu_us_per_step": best(t_copy, 1),
+                        "copy_only_nlsys_us_per_step_median": median(t_copy)}  # fmt: skip
+    return pc, overhead
+
+
 def python_control_table(rec: dict, subject: str) -> list[str]:
     """The performance record's python-control table (``subject``: the controller whose closed
     loop the nlsys runs)."""
@@ -178,3 +217,25 @@ def python_control_table(rec: dict, subject: str) -> list[str]:
             f"alone, nothing else of the loop) is {rec['floor_cpu_us_per_step']:.2f}.",
         ]  # fmt: skip
     return lines + [""]
+
+
+def weights_figure(rec: dict):
+    """Cost per step against the network size: closed loop, library update, floor."""
+    import matplotlib.pyplot as plt
+
+    v = rec["vs_weights"]
+    n = np.array([x["n_weights"] for x in v], dtype=float)
+    floor = np.array([x["floor_us_per_step"] for x in v])
+    limit = rec["targets"]["floor_ratio_max"]
+    fig, ax = plt.subplots(figsize=(6, 4.2), layout="constrained")
+    ax.loglog(n, [x["us_per_step"] for x in v], "o-", label="iapid-nn-dekf closed-loop step")
+    ax.loglog(n, [x["weight_update_us_per_step"] for x in v], "s--",
+              label="wmr.ekf.weight_update alone")  # fmt: skip
+    ax.loglog(n, floor, "^-", label="floor (minimal EKF update)")
+    ax.loglog(n, limit * floor, ":", color="gray", label=f"{limit:g} x floor (target)")
+    ax.set_xlabel("number of network weights n")
+    ax.set_ylabel("µs per step")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title("Cost per step against the network size")
+    return fig

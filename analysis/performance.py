@@ -54,7 +54,7 @@ import time
 
 import numpy as np
 
-from analysis import _bench, _floor, _py_controller_bench, _sweep_bench, common
+from analysis import _against, _bench, _floor, _phases, _py_controller_bench, _sweep_bench, common
 from analysis._bench import clocks, per_step, steps_done
 from wmr import controllers, loop, sim
 from wmr import scenario as scn
@@ -74,6 +74,12 @@ TARGETS = {
     "plant_ratio_max": 1.3,  # step with lag, delay and slip / ideal step (issue 12)
     "sweep_efficiency_min": 0.9,  # sweep runs/s on 2 workers / (2 x serial), issue 13
     "large_sweep_runs_min": 100_000,
+    # issue 25: CPU µs per step (whole run, set-up included), the IAPID step over the floor,
+    # the set-up of one run (a one-step run of iapid-nn-dekf)
+    "us_per_step_max": {"backstepping": 0.15, "pid": 0.15, "adaptive-pid": 0.25,
+                        "adaptive-nn": 3.0},
+    "iapid_floor_ratio_max": 1.5,
+    "run_overhead_ms_max": 0.05,
     "nmpc_step_median_ms_max": 0.5,  # issue 21: nmpc's own step, median
 }
 #: The targets :func:`check` asserts (ratios and correctness); absolute wall-time misses are
@@ -88,7 +94,8 @@ SUBJECT = _floor.SUBJECT
 _US = 1e6
 
 
-def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
+def run(out, *, quick: bool = False, workers: int | None = None, against: str | None = None
+        ) -> dict:  # fmt: skip
     """Run the benchmark; write ``performance.json``, its table and figure; return the record.
 
     Parameters
@@ -101,6 +108,9 @@ def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
     workers : int, optional
         Worker processes of the Monte-Carlo (default: all usable cores); the scaling is measured
         with 1 and 2 (and ``workers``) processes.
+    against : str, optional
+        A git commit (or branch, tag) timed against this tree in the same run, pair by pair of
+        fresh processes (``analysis._against``): per-run and set-up CPU cost of each controller.
     """
     from wmr.study import default_workers
 
@@ -118,7 +128,9 @@ def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
     rec["warmup_compile_s"] = {k: max(0.0, rec["warmup_s"][k] - v / _US * lem.n_steps)
                                for k, v in rec["us_per_step"].items()}  # fmt: skip
     rss = {"after_warmup_and_step_timings": _bench.rss_mb()}
-    rec["run_overhead_ms"] = _run_overhead(lem, repeats)
+    rec["run_overhead_ms_by_controller"] = _run_overhead(lem, repeats)
+    rec["run_overhead_ms"] = rec["run_overhead_ms_by_controller"][SUBJECT]
+    rec["phases"] = _phases.breakdown(lem, controllers.NAMES, 3 if quick else 5)
     rec["plant"] = _plant_costs(lem, repeats)
     rec["vs_weights"] = _vs_weights(lem, (5, 10, 20) if quick else (5, 10, 20, 40), quick)
     rec.update(_paper_runs(repeats))
@@ -128,12 +140,15 @@ def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
     rec["sweep"] = _sweep_bench.throughput(workers=2, quick=quick, repeats=1 if quick else 3)
     if not quick:
         rec["sweep"]["large_sweep"] = _sweep_bench.large_sweep(TARGETS["large_sweep_runs_min"])
-    pc, overhead = _python_control(lem, 200 if quick else 500, 3 if quick else 5)
+    pc, overhead = _bench.python_control(lem, 200 if quick else 500, 3 if quick else 5, SUBJECT)
     rec["python_control"] = pc
     rec["python_control_overhead"] = overhead
     rec["python_control_us_per_step"] = pc[f"{SUBJECT}/jit"]["us_per_step"]
     if not quick:
         rec["cold_process_first_run_s"] = _bench.cold_process_first_run()
+    if against:
+        rec["against"] = _against.compare(against, (*controllers.NAMES, "adaptive-pid~approximate"),
+                                          pairs=3 if quick else 7, runs=5 if quick else 20)
     rec["peak_rss_mb"] = _bench.rss_mb()
     rec["peak_rss_children_mb"] = _bench.rss_mb(resource.RUSAGE_CHILDREN)
     rss["end"] = rec["peak_rss_mb"]
@@ -147,7 +162,7 @@ def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
     rec["notes"] = notes(rec)
     common.write_record(out, STEM, rec)
     common.write_table(out, STEM, table(rec))
-    common.save_figure(out, FIGURE, _figure(rec))
+    common.save_figure(out, FIGURE, _bench.weights_figure(rec))
     return rec
 
 
@@ -239,15 +254,17 @@ def _step_costs(lem, prob, repeats: int) -> tuple[dict, float]:
     return costs, float(np.median(paired))
 
 
-def _run_overhead(lem, repeats: int) -> float:
-    """Milliseconds of one run outside the kernel: a one-step run."""
+def _run_overhead(lem, repeats: int) -> dict:
+    """CPU milliseconds of one run outside its steps (a one-step run: ``prepare``, the kernel's
+    call, the record), per controller, interleaved; the minimum over repeats."""
     one = dataclasses.replace(lem, duration=lem.dt)
-    ov = []
-    for _ in range(repeats):
-        t0 = clocks()
-        sim.simulate(one, SUBJECT, 0, keep_trajectory=False)
-        ov.append(per_step(t0))
-    return _best(ov) / 1e3
+    ov = {name: [] for name in controllers.NAMES if controllers.get(name).compiled}
+    for _ in range(3 * repeats):  # short: more samples
+        for name in ov:
+            t0 = clocks()
+            sim.simulate(one, name, 0, keep_trajectory=False)
+            ov[name].append(per_step(t0))
+    return {name: _best(v, 1) / 1e3 for name, v in ov.items()}
 
 
 #: The non-ideal plant timed against the ideal one (issue 12): lag, delay and slip together.
@@ -344,31 +361,6 @@ def _monte_carlo(lem, workers: int, quick: bool) -> dict:
     return rec
 
 
-def _python_control(lem, steps: int, repeats: int) -> tuple[dict, dict]:
-    """The closed loop as a python-control nlsys (``wmr.nlsys``) on the first ``steps`` steps of
-    the lemniscate, each repeat timed beside a kernel run; and python-control's own cost per
-    step (a copy-only nlsys of the same state size)."""
-    short = dataclasses.replace(lem, duration=steps * lem.dt)
-    pc, overhead = {}, {}
-    for controller in (SUBJECT, "backstepping"):
-        subject = controller == SUBJECT
-        t_pc, t_k, err, t_copy, nx = _bench.time_python_control(short, controller, repeats, lem,
-                                                                copy_only=subject)  # fmt: skip
-        pc[f"{controller}/jit"] = {
-            "us_per_step": _best(t_pc), "us_per_step_median": _median(t_pc),
-            "cpu_us_per_step": _best(t_pc, 1), "kernel_us_per_step_beside": _best(t_k),
-            "kernel_cpu_us_per_step_beside": _best(t_k, 1), "steps": steps,
-            "max_abs_q_difference": err,
-            "ratio": float(np.median([a[1] / b[1] for a, b in zip(t_pc, t_k, strict=True)])),
-            "ratio_wall_min_over_min": _best(t_pc) / _best(t_k),
-        }  # fmt: skip
-        if subject:
-            overhead = {"n_states": nx, "copy_only_nlsys_us_per_step": _best(t_copy),
-                        "copy_only_nlsys_cpu_us_per_step": _best(t_copy, 1),
-                        "copy_only_nlsys_us_per_step_median": _median(t_copy)}  # fmt: skip
-    return pc, overhead
-
-
 def _ratios(rec: dict, over_floor: float) -> dict:
     """The ratios of the record's timings (``over_floor``: the median paired CPU ratio)."""
     iapid, pc = rec["us_per_step"][SUBJECT], rec["python_control"]
@@ -410,6 +402,10 @@ def targets_met(rec: dict) -> dict:
         and rec["sweep"]["large_sweep"]["runs"] >= t["large_sweep_runs_min"],
         "plant_overhead": None if "plant" not in rec else all(
             rec["plant"][n]["ratio"] <= t["plant_ratio_max"] for n in ("backstepping", SUBJECT)),
+        "iapid_floor_ratio_25": rec["ratios"]["iapid_over_floor"] <= t["iapid_floor_ratio_max"],
+        "run_overhead_25": rec["run_overhead_ms"] <= t["run_overhead_ms_max"],
+        **{f"us_per_step_{name}": rec["cpu_us_per_step"][name] <= limit
+           for name, limit in t["us_per_step_max"].items() if name in rec["cpu_us_per_step"]},
         "nmpc_step_median": None if not (rec.get("python_controllers") or {}).get("nmpc")
         else rec["python_controllers"]["nmpc"]["step_ms"]["median"]
         <= t["nmpc_step_median_ms_max"],
@@ -474,7 +470,12 @@ def notes(rec: dict) -> list[str]:
         "The loop is compiled once per controller (wmr.loop.kernel) and cached on disk: "
         "advance_cache counts the loads from the cache (hits) and compilations (misses) of this "
         "process.", *([_py_controller_bench.NOTE] if rec.get("python_controllers") else []),
+        *(note for key, note in _NOTES_25.items() if key in rec),
     ]
+
+
+#: Notes on what only newer records measure (shown when the record has it).
+_NOTES_25 = {"phases": _phases.NOTE, "against": _against.NOTE}
 
 
 def _targets_table(rec: dict) -> list[str]:
@@ -509,11 +510,26 @@ def _targets_table(rec: dict) -> list[str]:
         *(f"| {name} step, plant with lag + delay + slip / ideal plant "
           f"| {rec['plant'][name]['ratio']:.2f}x | <= {t['plant_ratio_max']:g}x "
           f"| {ok('plant_overhead')} |" for name in ("backstepping", SUBJECT) if "plant" in rec),
+        *_targets_25(rec, ok),
         *(f"| nmpc's step, median [ms] | {v['step_ms']['median']:.3f} "
           f"| <= {t['nmpc_step_median_ms_max']:g} | {ok('nmpc_step_median')} |"
           for v in [(rec.get("python_controllers") or {}).get("nmpc")] if v),
         "",
     ]  # fmt: skip
+
+
+def _targets_25(rec: dict, ok) -> list[str]:
+    """The issue 25 rows of the targets table (records that have the phases only)."""
+    if "phases" not in rec:
+        return []
+    r, t = rec["ratios"], TARGETS
+    return [*(f"| {name} CPU µs per step (issue 25) | {rec['cpu_us_per_step'][name]:.3f} "
+              f"| <= {limit:g} | {ok('us_per_step_' + name)} |"
+              for name, limit in t["us_per_step_max"].items() if name in rec["cpu_us_per_step"]),
+            f"| iapid-nn-dekf step / floor (issue 25) | {r['iapid_over_floor']:.2f}x "
+            f"| <= {t['iapid_floor_ratio_max']:g}x | {ok('iapid_floor_ratio_25')} |",
+            f"| set-up of one iapid-nn-dekf run [ms] | {rec['run_overhead_ms']:.3f} "
+            f"| <= {t['run_overhead_ms_max']:g} | {ok('run_overhead_25')} |"]  # fmt: skip
 
 
 def _costs_table(rec: dict) -> list[str]:
@@ -548,6 +564,15 @@ def tables(rec: dict) -> str:
         f" -> {mach['load_average_end'][0]:.2f}; quick = {rec['quick']}.", "",
     ]  # fmt: skip
     lines += _targets_table(rec) + _costs_table(rec) + _py_controller_bench.table_lines(rec)
+    if "phases" in rec:
+        lines += ["CPU µs per step, phase by phase (each phase alone on a real run's inputs; "
+                  "kernel = the whole run, set-up included; loop = kernel - sum):", "",
+                  *_phases.table(rec["phases"])]  # fmt: skip
+    if "run_overhead_ms_by_controller" in rec:
+        lines += ["Set-up of one run (a one-step run), CPU ms: " + ", ".join(
+            f"{k} {v:.3f}" for k, v in rec["run_overhead_ms_by_controller"].items()) + ".", ""]
+    if "against" in rec:
+        lines += _against.table(rec["against"])
     lines += _bench.python_control_table(rec, SUBJECT)
     lines += ["| hidden | n | loop µs/step | weight_update µs | floor µs | loop/floor |",
               "|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
@@ -565,28 +590,6 @@ def tables(rec: dict) -> str:
               f"{rec['rows_bytes_per_run']:.0f} B pickled; a kept trajectory "
               f"{rec['trajectory_mb_per_run']:.2f} MB per run.", ""]  # fmt: skip
     return "\n".join(lines) + "\n"
-
-
-def _figure(rec: dict):
-    """Cost per step against the network size: closed loop, library update, floor."""
-    import matplotlib.pyplot as plt
-
-    v = rec["vs_weights"]
-    n = np.array([x["n_weights"] for x in v], dtype=float)
-    floor = np.array([x["floor_us_per_step"] for x in v])
-    limit = rec["targets"]["floor_ratio_max"]
-    fig, ax = plt.subplots(figsize=(6, 4.2), layout="constrained")
-    ax.loglog(n, [x["us_per_step"] for x in v], "o-", label="iapid-nn-dekf closed-loop step")
-    ax.loglog(n, [x["weight_update_us_per_step"] for x in v], "s--",
-              label="wmr.ekf.weight_update alone")  # fmt: skip
-    ax.loglog(n, floor, "^-", label="floor (minimal EKF update)")
-    ax.loglog(n, limit * floor, ":", color="gray", label=f"{limit:g} x floor (target)")
-    ax.set_xlabel("number of network weights n")
-    ax.set_ylabel("µs per step")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title("Cost per step against the network size")
-    return fig
 
 
 if __name__ == "__main__":

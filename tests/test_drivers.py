@@ -1,7 +1,7 @@
 """The step is written once and driven twice: the compiled kernel and the Python driver.
 
 The oracle for the Python driver is the compiled kernel (and the other way round): both run
-``wmr.loop._step_template`` on the same noise and reference, so every record must be equal bit
+``wmr.loop._advance_template`` on the same noise and reference, so every record must be equal bit
 for bit (``assert_array_equal``, no tolerance) -- for every compiled registry row, with probes,
 with the built-in plant wrapped as a Python-level plant (``wmr.pyplant.TablePlant``), and with a
 Python-level controller that wraps a compiled law.  Any difference means the two drivers do not

@@ -83,8 +83,7 @@ def hand_made(tmp_path, commands, plant=PLANT, seed=0, name="hand.csv"):
     for k, c in enumerate(commands):
         poses.append(q.copy())
         u[:] = c
-        half(k, dt, run.integrator, u, ua, q, run.q_hat, run.Pq, run.Qp, False, run.disturbance,
-             arrays, False, None)  # fmt: skip
+        half(k, dt, run.integrator, u, ua, q, run.disturbance, arrays, None)
     z = np.array(poses) + POSE_STD * np.random.default_rng(seed).standard_normal((n, 3))
     write_log(tmp_path / name, {"t": np.arange(n) * dt, "v": commands[:, 0],
                                 "w": commands[:, 1], "x_meas": z[:, 0], "y_meas": z[:, 1],
@@ -382,8 +381,7 @@ def test_written_table_loads_and_reproduces_the_fit(recovered):
             q[:] = ident.initial_poses[list(ident.starts).index(k)]
         poses.append(q.copy())
         u[:] = r.u[k]
-        half(k, sc.dt, run.integrator, u, ua, q, run.q_hat, run.Pq, run.Qp, False,
-             run.disturbance, arrays, False, None)  # fmt: skip
+        half(k, sc.dt, run.integrator, u, ua, q, run.disturbance, arrays, None)
     assert_array_equal(np.array(poses), ident.fitted)
     again = simulate(dataclasses.replace(sc, duration=r.t[-1]), CONTROLLER, 0)
     assert np.max(np.hypot(*(again.q[:, :2] - r.q[:, :2]).T)) < 2e-3

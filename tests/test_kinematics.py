@@ -289,3 +289,42 @@ def test_heading_error_across_the_branch_cut():
     assert km.tracking_error(q, q_r)[2] == pytest.approx(0.2, abs=1e-14)  # the short way round
     q_r = np.array([0.0, 0.0, q[2] + math.pi])
     assert km.tracking_error(q, q_r)[2] == pytest.approx(math.pi, abs=1e-14)
+
+
+# --- the allocation-free forms ---------------------------------------------------------------
+
+
+@pytest.mark.parametrize("integrator", INTEGRATOR_PARAMS)
+def test_step_into_may_advance_the_pose_in_place(integrator):
+    """``step_into(q, u, dt, i, q)`` (the loop's form: the pose overwritten as it is read) gives
+    the bits of ``step`` into a separate array, for every integrator (an aliasing bug -- a
+    coordinate read after it was written -- would move x or y)."""
+    q, u, dt = _random_points(seed=7, n=50)
+    for qi, ui, h in zip(q, u, dt, strict=True):
+        expected = km.step(qi, ui, h, integrator)
+        inplace = qi.copy()
+        km.step_into(inplace, ui, h, integrator, inplace)
+        assert_array_equal(inplace, expected)
+
+
+@pytest.mark.parametrize("integrator", INTEGRATOR_PARAMS)
+def test_step_jacobians_into_computes_the_one_asked_for(integrator):
+    """With ``F`` or ``G`` None only the other is written (the laws need G, the filter F); each
+    equals ``step_jacobians``'s, and a stale buffer is fully overwritten."""
+    q, u, dt = _random_points(seed=8, n=20)
+    for qi, ui, h in zip(q, u, dt, strict=True):
+        F, G = km.step_jacobians(qi, ui, h, integrator)
+        Fo, Go = np.full((3, 3), np.nan), np.full((3, 2), np.nan)
+        km.step_jacobians_into(qi, ui, h, integrator, Fo, None)
+        km.step_jacobians_into(qi, ui, h, integrator, None, Go)
+        assert_array_equal(Fo, F)
+        assert_array_equal(Go, G)
+
+
+def test_tracking_error_parts_are_the_tracking_error():
+    """The scalar form (the laws') and the array form give the same bits, rotation and printed."""
+    q, _, _ = _random_points(seed=9, n=100)
+    q_r = q[::-1] + 0.3
+    for a, b in zip(q, q_r, strict=True):
+        for printed in (False, True):
+            assert km.tracking_error_parts(a, b, printed) == tuple(km.tracking_error(a, b, printed))

@@ -417,7 +417,8 @@ def test_quick_run_writes_the_study_and_passes_check(tmp_path):
     assert "python_control_ratio_min" not in stored["targets"]
     recorded = {"paper_runs_one_seed", "monte_carlo_1000", "quick_under_2_min", "plant_overhead",
                 "sweep_local_efficiency", "sweep_dask_efficiency", "large_sweep",
-                "nmpc_step_median"}
+                "iapid_floor_ratio_25", "run_overhead_25",  # issue 25: recorded, not asserted
+                *(f"us_per_step_{n}" for n in perf.TARGETS["us_per_step_max"]), "nmpc_step_median"}
     sweep = stored["sweep"]  # issue 13: measured on a local cluster and a loopback scheduler
     assert sweep["rows_equal"] is True and set(sweep["controllers"]) == {"iapid-nn-dekf", "pid"}
     assert 0 < sweep["local"]["efficiency"] and 0 < sweep["dask"]["efficiency"]
@@ -431,6 +432,47 @@ def test_quick_run_writes_the_study_and_passes_check(tmp_path):
         p = stored["plant"][name]
         assert p["ratio"] > 0.5
         assert p["plant_cpu_us_per_step"] > 0 and p["ideal_cpu_us_per_step"] > 0
+    # issue 25: the step phase by phase, for every controller, and each run's set-up
+    assert set(stored["phases"]) == set(stored["us_per_step"])
+    for v in stored["phases"].values():
+        assert v["kernel"] > 0 and v["law"] > 0 and v["sum"] == pytest.approx(
+            sum(v[k] for k in ("sense", "law", "plant", "predict", "score")))
+    assert stored["phases"]["iapid-nn-dekf"]["predict"] > 0  # it acts on the filtered pose
+    assert stored["phases"]["backstepping"]["predict"] == 0.0  # it does not
+    assert set(stored["run_overhead_ms_by_controller"]) == set(stored["us_per_step"])
+
+
+@pytest.mark.parametrize(("n", "level", "j"), [(5, 0.9, 1), (9, 0.9, 2), (10, 0.9, 2),
+                                                (20, 0.95, 6)])  # fmt: skip
+def test_median_interval_is_the_binomial_order_statistic(n, level, j):
+    """The interval of ``analysis._against.median_interval`` is ``(x_(j), x_(n+1-j))`` with the
+    largest ``j`` of binomial(n, 1/2) coverage >= level: j from the closed form, checked on a
+    permutation of 1..n (the k-th order statistic is k)."""
+    from analysis._against import median_interval
+
+    cover = 1 - 2 * sum(math.comb(n, i) for i in range(j)) / 2**n
+    assert cover >= level and (j == n // 2 or
+                               1 - 2 * sum(math.comb(n, i) for i in range(j + 1)) / 2**n < level)
+    x = np.random.default_rng(0).permutation(np.arange(1.0, n + 1))
+    med, lo, hi = median_interval(x, level)
+    assert (med, lo, hi) == (np.median(x), float(j), float(n + 1 - j))
+
+
+def test_against_per_step_and_its_table_columns():
+    """``analysis._against``'s per-step figure is (run - set-up) / steps in us (a run of 2 ms
+    with 0.5 ms set-up over 3000 steps: 0.5 us), and the table shows it beside the run and
+    set-up columns, a row the reference lacks the figure for as dashes (a tree predating it)."""
+    from analysis._against import _per_step, table
+
+    rec = _per_step({"run_ms": {"a": 2.0}, "setup_ms": {"a": 0.5}, "steps": {"a": 3000}})
+    assert rec["step_us"]["a"] == pytest.approx(0.5, rel=1e-12)
+    cell = {"this": 0.5, "ref": 1.0, "ratio": 0.5, "ratio_low": 0.4, "ratio_high": 0.6}
+    lines = table({"ref": "r", "pairs": 5, "runs_per_process": 10, "level": 0.9,
+                   "controllers": {"a": {"run_ms": cell, "setup_ms": cell, "step_us": cell},
+                                   "b": {"run_ms": cell, "setup_ms": cell}}})  # fmt: skip
+    row_a = next(x for x in lines if x.startswith("| a |"))
+    row_b = next(x for x in lines if x.startswith("| b |"))
+    assert row_a.count("0.500 [0.400, 0.600]") == 3 and row_b.endswith("| — | — | — |")
 
 
 def test_check_passes_on_the_committed_record():

@@ -16,7 +16,7 @@ from cases import CROSS_MACHINE_RTOL
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy.integrate import solve_ivp
 
-from wmr import loop, plant, plantspec
+from wmr import loop, plant, plantspec, runsetup
 from wmr import scenario as scn
 from wmr.sim import simulate
 
@@ -40,8 +40,7 @@ def drive(spec: scn.Plant, commands, q0=(0.0, 0.0, 0.0), dt=DT):
     poses = [q.copy()]
     for k, c in enumerate(commands):
         u[:] = c
-        half(k, dt, run.integrator, u, ua, q, run.q_hat, run.Pq, run.Qp, False, run.disturbance,
-             arrays, False, None)  # fmt: skip
+        half(k, dt, run.integrator, u, ua, q, run.disturbance, arrays, None)
         poses.append(q.copy())
     return np.array(poses), run.plant_vel
 
@@ -205,6 +204,7 @@ def test_rmse_is_converged_under_tenfold_refinement(controller, section, lemnisc
     n_coarse = plant.arrays(sc.plant, sc.dt)[0][:, plant.N_SUB]
     default = plant.substeps
     monkeypatch.setattr(plant, "substeps", lambda row, model, dt: 10 * default(row, model, dt))
+    runsetup.SHARED.clear()  # the plant's table is scenario set-up shared by its runs: rebuild it
     assert np.array_equal(plant.arrays(sc.plant, sc.dt)[0][:, plant.N_SUB], 10 * n_coarse)
     fine = simulate(sc, controller, 0, keep_trajectory=False).rmse
     assert coarse != fine  # the finer integration did run

@@ -302,7 +302,7 @@ def cmd_bench(args) -> int:
     out = Path(args.out)
     _check_out(out)
     perf = _studies().get("performance")
-    res = perf.run(out, quick=args.quick, workers=args.workers)
+    res = perf.run(out, quick=args.quick, workers=args.workers, against=args.against)
     print(f"wrote {out}/results/performance.json, {out}/tables/performance.md")
     missed = [k for k, ok in res["targets_met"].items() if ok is False]
     print("targets met: " + ", ".join(k for k, ok in res["targets_met"].items() if ok))
@@ -450,6 +450,9 @@ def build_parser() -> argparse.ArgumentParser:
     bench.add_argument("--quick", action="store_true", help="a short benchmark (< 2 minutes)")
     bench.add_argument("--out", default="paper", help="output folder (default: paper)")
     bench.add_argument("--workers", type=_positive_int, default=None)
+    bench.add_argument("--against", default=None, metavar="REF",
+                       help="also time a git worktree of commit REF against this tree, pair by "
+                            "pair (per-run and set-up cost of each controller)")  # fmt: skip
     bench.set_defaults(func=cmd_bench)
 
     idf = sub.add_parser("identify", help="fit the [plant] of DESIGN §3.3 to a robot's log "

@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from wmr._jit import njit
-from wmr.kinematics import step, step_jacobians, wrap_angle
+from wmr.kinematics import step_into, step_jacobians_into, wrap_angle
 
 __all__ = [
     "weight_update",
@@ -31,6 +31,8 @@ __all__ = [
     "is_positive_definite",
     "pose_predict",
     "pose_update",
+    "pose_work",
+    "POSE_WORK",
     "nees",
     "cholesky",
     "cholesky_solve_rows",
@@ -38,7 +40,7 @@ __all__ = [
 
 
 @njit
-def joseph_update(x, P, H, innovation, R, work):
+def joseph_update(x, P, H, innovation, R, work, small=None):
     """Kalman measurement update in Joseph form, O(n^2 m), in place.
 
     Parameters
@@ -57,6 +59,10 @@ def joseph_update(x, P, H, innovation, R, work):
     work : ndarray, shape (3, m, n)
         Scratch, overwritten: ``work[0] = H P``, ``work[1] = K^T``,
         ``work[2] = (K S / 2 - P H^T)^T``.
+    small : ndarray, shape (3, m, m), optional
+        Scratch for ``S``, its Cholesky factor and the NIS solve (``small[0]``, ``small[1]``,
+        ``small[2, 0]``), overwritten; without it they are allocated (the loop passes it: no
+        allocation in the step).
 
     Returns
     -------
@@ -95,9 +101,16 @@ def joseph_update(x, P, H, innovation, R, work):
     HP = work[0]
     Kt = work[1]
     Dt = work[2]
+    if small is None:
+        S = np.empty((m, m))
+        L = np.empty((m, m))
+        y = np.empty(m)
+    else:
+        S = small[0]
+        L = small[1]  # only its lower triangle is written and read
+        y = small[2, 0]
     # M^T = H P (= (P H^T)^T for symmetric P)
     _h_times_p(H, P, HP)
-    S = np.empty((m, m))
     for r in range(m):
         for s in range(m):
             acc = 0.0
@@ -109,7 +122,6 @@ def joseph_update(x, P, H, innovation, R, work):
             v = 0.5 * (S[r, s] + S[s, r])
             S[r, s] = v
             S[s, r] = v
-    L = np.zeros((m, m))
     if not cholesky(S, L):
         return np.nan
     # K^T = S^{-1} H P, by forward and back substitution with L L^T = S
@@ -124,7 +136,7 @@ def joseph_update(x, P, H, innovation, R, work):
             Ks = Kt[s]
             for b in range(n):
                 out[b] += c * Ks[b]
-    nis = _normalised_square(L, innovation)
+    nis = _normalised_square(L, innovation, y)
     for r in range(m):
         c = innovation[r]
         Kr = Kt[r]
@@ -256,10 +268,10 @@ def cholesky_solve_rows(L, B, X):
 
 
 @njit
-def _normalised_square(L, e):
-    """``e^T (L L^T)^{-1} e = |L^{-1} e|^2`` by forward substitution; ``L`` lower (m, m)."""
+def _normalised_square(L, e, y):
+    """``e^T (L L^T)^{-1} e = |L^{-1} e|^2`` by forward substitution; ``L`` lower (m, m), ``y``
+    (m,) scratch."""
     m = e.size
-    y = np.empty(m)
     out = 0.0
     for r in range(m):
         acc = e[r]
@@ -271,16 +283,17 @@ def _normalised_square(L, e):
 
 
 @njit
-def weight_update(theta, P, H, innovation, q_diag, R, work):
+def weight_update(theta, P, H, innovation, q_diag, R, work, small=None):
     """One step of the weight filter, eqs. (27)-(31) with errata E8, in place.
 
     Predict with ``f = identity``: ``P <- P + diag(q_diag)``; then the Joseph update of
     :func:`joseph_update` with ``H = dz/dtheta`` at the current input and the innovation
-    ``d_k - h(theta, x_k)``.  ``work`` is scratch of shape (3, m, n).  Returns the NIS.
+    ``d_k - h(theta, x_k)``.  ``work`` is scratch of shape (3, m, n), ``small`` (3, m, m)
+    optional scratch (:func:`joseph_update`).  Returns the NIS.
     """
     for i in range(theta.size):
         P[i, i] += q_diag[i]
-    return joseph_update(theta, P, H, innovation, R, work)
+    return joseph_update(theta, P, H, innovation, R, work, small)
 
 
 def weight_update_reference(theta, P, H, innovation, q_diag, R):
@@ -338,14 +351,34 @@ def repair_covariance(P, floor):
     return bad
 
 
+#: Slices of the pose filter's scratch (:func:`pose_work`, shape (POSE_WORK, 3, 3)): the Joseph
+#: update's ``work`` (3 slices) and ``small`` (3), the measurement matrix, ``F``, ``F P``, ``G``
+#: and the innovation.
+_W_JOSEPH, _W_SMALL, _W_H, _W_F, _W_FP, _W_G, _W_NU = 0, 3, 6, 7, 8, 9, 10
+POSE_WORK = 11
+
+
 @njit
-def pose_predict(q_hat, P, u, dt, integrator, Qp):
-    """Pose-filter prediction, in place: ``q_hat <- step(q_hat, u)``, ``P <- F P F^T + Qp``."""
-    F, _ = step_jacobians(q_hat, u, dt, integrator)
-    q_hat[:] = step(q_hat, u, dt, integrator)
+def pose_work():
+    """Scratch for :func:`pose_predict` and :func:`pose_update`, shape (POSE_WORK, 3, 3)
+    (overwritten by each call), so that the loop's pose filter allocates nothing per step."""
+    return np.zeros((POSE_WORK, 3, 3))
+
+
+@njit
+def pose_predict(q_hat, P, u, dt, integrator, Qp, work=None):
+    """Pose-filter prediction, in place: ``q_hat <- step(q_hat, u)``, ``P <- F P F^T + Qp``.
+
+    ``work``: optional scratch of :func:`pose_work` (none allocated then)."""
+    if work is None:
+        work = np.zeros((POSE_WORK, 3, 3))
+    F = work[_W_F]
+    G = work[_W_G].reshape(9)[0:6].reshape((3, 2))
+    FP = work[_W_FP]
+    step_jacobians_into(q_hat, u, dt, integrator, F, G)
+    step_into(q_hat, u, dt, integrator, q_hat)
     # written out: a 3 x 3 product needs no BLAS call, whose rounding would depend on the
     # machine's BLAS kernel; the upper triangle is mirrored, so P stays exactly symmetric
-    FP = np.empty((3, 3))
     for i in range(3):
         for j in range(3):
             FP[i, j] = F[i, 0] * P[0, j] + F[i, 1] * P[1, j] + F[i, 2] * P[2, j]
@@ -357,14 +390,24 @@ def pose_predict(q_hat, P, u, dt, integrator, Qp):
 
 
 @njit
-def pose_update(q_hat, P, z, Rp):
+def pose_update(q_hat, P, z, Rp, work=None):
     """Pose-filter update with the measured pose ``z`` (``H = I_3``), in place; returns the NIS.
 
     The heading innovation is wrapped to (-pi, pi]; the estimate's heading stays continuous.
+    ``work``: optional scratch of :func:`pose_work` (none allocated then).
     """
-    nu = z - q_hat
+    if work is None:
+        work = np.zeros((POSE_WORK, 3, 3))
+    nu = work[_W_NU, 0]
+    for i in range(3):
+        nu[i] = z[i] - q_hat[i]
     nu[2] = wrap_angle(nu[2])
-    return joseph_update(q_hat, P, np.eye(3), nu, Rp, np.empty((3, 3, 3)))
+    H = work[_W_H]
+    for i in range(3):
+        for j in range(3):
+            H[i, j] = 1.0 if i == j else 0.0
+    return joseph_update(q_hat, P, H, nu, Rp, work[_W_JOSEPH : _W_JOSEPH + 3],
+                         work[_W_SMALL : _W_SMALL + 3])  # fmt: skip
 
 
 @njit

@@ -9,8 +9,9 @@ pose ``x, y, theta`` among them, which a real robot's log lacks -- are ignored; 
 empty per-step cells (``wmr run``'s last instant) are dropped.  The robot is at rest at the first
 row with no command in its delay line (§3.3; what ``wmr run`` logs).
 
-The model is ``wmr.plant`` itself: :func:`replay` drives ``wmr.plant.delayed`` and
-``wmr.plant.apply`` with the logged commands (``PARAMETERS`` and ``delay_steps``; slip as the
+The model is ``wmr.plant`` itself: :func:`replay` drives the loop's own plant half
+(``wmr.loop.plant_half``: ``wmr.plant.delayed``, the disturbance, ``wmr.plant.apply``) with the
+logged commands (``PARAMETERS`` and ``delay_steps``; slip as the
 plant defines it, §3.3: ``v_s = -slip v w``, signed, positive outward).  **Output error**: the
 residual is the measured pose minus the simulated one (heading wrapped), each channel divided by
 its noise level from second differences of the measured pose (``var(Δ²z) = 6 σ²``), minimised by
@@ -56,7 +57,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from wmr import plant
+from wmr import loop, plant
 from wmr._jit import njit
 from wmr._settings import InputError, one_line
 from wmr.scenario import Plant
@@ -206,20 +207,31 @@ def structural(log: Log) -> dict[str, str]:
     return out
 
 
+#: The loop's plant half with the parameter table (delay -> disturbance -> ``wmr.plant.apply``).
+_PLANT_HALF = loop.plant_half(loop.PLANT_TABLE)
+
+
 @njit
 def _replay(u, dist, dt, table, at, ints, buffer, starts, q0, out):
-    """The plant half of ``wmr.loop`` (delay -> disturbance -> ``wmr.plant.apply``) driven by
-    logged commands; ``out[k]`` the pose at ``t_k``, reset to ``q0[j]`` at row ``starts[j]``."""
-    vel, ua, q, j = np.zeros(2), np.zeros(2), np.zeros(3), 0
+    """The plant half of ``wmr.loop`` (:data:`_PLANT_HALF`) driven by logged commands ``u`` and
+    disturbances ``dist`` (n, 2) (row ``k`` a window ``[t_k, inf)`` of the half's disturbance
+    table, so exactly ``dist[k]`` is added at ``t_k``); ``out[k]`` the pose at ``t_k``, reset to
+    ``q0[j]`` at row ``starts[j]``."""
+    vel, uk, ua, q, j = np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(3), 0
+    window, no_log = np.zeros((1, 4)), np.zeros((0, 2))
+    window[0, 1] = np.inf
+    arrays = (table, at, ints, vel, buffer)
     for k in range(u.shape[0]):
         if j < starts.size and k == starts[j]:
             q[:] = q0[j]
             j += 1
         out[k, :] = q
-        ua[:] = u[k]
-        plant.delayed(ua, ints, buffer)
-        ua += dist[k]
-        plant.apply(k, dt, ua, q, table, at, ints, vel)
+        uk[0] = u[k, 0]
+        uk[1] = u[k, 1]
+        window[0, 0] = k * dt  # the time the half computes, so the window contains it
+        window[0, 2] = dist[k, 0]
+        window[0, 3] = dist[k, 1]
+        _PLANT_HALF(k, dt, 0, uk, ua, q, window, arrays, no_log)
 
 
 def _table(values, dt: float, max_substeps: int | None = None) -> np.ndarray:

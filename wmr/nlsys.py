@@ -5,7 +5,7 @@ phases the kernel is built from, called in the kernel's order -- as the update f
 ``control.NonlinearIOSystem`` with sample time ``dt``, so that the loop can be stepped by
 ``control.input_output_response`` or connected to other python-control systems (a reference
 generator, a noise model) through its inputs.  Nothing of the step is written here: the update
-function unpacks the loop's state from the nlsys state vector and calls the loop's one step
+function unpacks the loop's state from the nlsys state vector and runs the loop for that one step
 (``wmr.loop.python_step``: sense, law, saturate, disturb, plant, pose-filter prediction, in the
 kernel's order, the oracle's true pose included), so its trajectory is
 ``wmr.sim.simulate``'s, bit for bit (``tests/test_nlsys.py``).
@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from wmr import loop, metrics
+from wmr.ekf import pose_work
 from wmr.scenario import Scenario
 
 __all__ = ["INPUTS", "OUTPUTS", "Layout", "ClosedLoop", "closed_loop", "inputs", "update_function"]
@@ -189,23 +190,22 @@ def update_function(run: loop.Prepared, layout: Layout):
     module's last paragraph), but a non-finite command makes the next state NaN.
     """
     sc = run.scenario
-    one_step = loop.python_step(run)
+    advance = loop.python_step(run)
     dt, p, integrator = sc.dt, run.p, run.integrator
     v_max, w_max, bound = sc.limits.v_max, sc.limits.w_max, math.inf
-    scratch = (np.zeros(2), np.zeros(2), np.zeros(3))  # as in the kernel
+    scratch = (np.zeros(2), np.zeros(2), np.zeros(3), pose_work())  # as in the kernel
     acc, status, none = np.zeros(metrics.N_ACC), np.zeros(2, dtype=np.int64), np.zeros((0, 0))
-    plant_arrays = (run.plant_table, run.plant_at, run.plant_ints, run.plant_vel,
-                    run.plant_buffer)  # fmt: skip
 
     def update(t, x, u, params=None):
         x = x.copy()
         q, q_hat, Pq, s, theta, P = layout.split(x)
         k = round(t / dt)
         ref = np.vstack((u[3:8], u[3:8]))  # the row at t_k (the second is only scored)
-        stopped = one_step(k, 0, dt, integrator, p, s, theta, P, q, q_hat, ref,
-                           u[0:3].reshape(1, 3), run.use_ekf, Pq, run.Qp, run.Rp,
-                           run.disturbance, v_max, w_max, bound, plant_arrays, acc,
-                           metrics.TRANSIENT, status, scratch, False, (none,) * 6)  # fmt: skip
+        stopped = advance(p, s, theta, P, k, k + 1, dt, integrator, q, q_hat, ref,
+                          u[0:3].reshape(1, 3), run.use_ekf, Pq, run.Qp, run.Rp,
+                          run.disturbance, v_max, w_max, bound, run.plant_table, run.plant_at,
+                          run.plant_ints, run.plant_vel, run.plant_buffer, acc,
+                          metrics.TRANSIENT, status, *(none,) * 6, scratch)  # fmt: skip
         if stopped and status[1] == 1:
             x[:] = np.nan  # the kernel stops the run here
         return x

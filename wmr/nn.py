@@ -28,7 +28,9 @@ __all__ = [
     "init_weights",
     "unpack",
     "forward",
+    "forward_into",
     "input_jacobian",
+    "input_jacobian_into",
     "input_jacobian_printed",
     "weight_jacobian",
 ]
@@ -62,19 +64,26 @@ def unpack(theta, n_in, n_h, n_out):
 @njit
 def forward(theta, x, n_h, n_out):
     """Outputs ``z`` (n_out,) and hidden activations ``h`` (n_h,) for input ``x`` (n_in,)."""
+    z = np.empty(n_out)
+    h = np.empty(n_h)
+    forward_into(theta, x, n_h, n_out, z, h)
+    return z, h
+
+
+@njit
+def forward_into(theta, x, n_h, n_out, z, h):
+    """:func:`forward` written into ``z`` (n_out,) and ``h`` (n_h,): no allocation."""
     n_in = x.size
     V, b_v, W, b_w = unpack(theta, n_in, n_h, n_out)
-    h = np.empty(n_h)
     for j in range(n_h):
         a = b_v[j]
         for k in range(n_in):
             a += V[j, k] * x[k]
         h[j] = math.tanh(a)
-    z = b_w.copy()
     for i in range(n_out):
+        z[i] = b_w[i]
         for j in range(n_h):
             z[i] += W[i, j] * h[j]
-    return z, h
 
 
 @njit
@@ -84,16 +93,23 @@ def input_jacobian(theta, x, n_h, n_out, h):
     Chain rule (errata E7): ``dz_i/dh_j = W[i, j]``, ``dh_j/dx_k = (1 - h_j^2) V[j, k]``, summed
     over the hidden units ``j``.
     """
+    J = np.empty((n_out, x.size))
+    input_jacobian_into(theta, x, n_h, n_out, h, J)
+    return J
+
+
+@njit
+def input_jacobian_into(theta, x, n_h, n_out, h, J):
+    """:func:`input_jacobian` written into ``J`` (n_out, n_in): no allocation."""
     n_in = x.size
     V, _, W, _ = unpack(theta, n_in, n_h, n_out)
-    J = np.zeros((n_out, n_in))
+    J[:, :] = 0.0
     for j in range(n_h):
         d = 1.0 - h[j] * h[j]
         for i in range(n_out):
             wd = W[i, j] * d
             for k in range(n_in):
                 J[i, k] += wd * V[j, k]
-    return J
 
 
 @njit

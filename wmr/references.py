@@ -20,35 +20,78 @@ from dataclasses import dataclass
 import numpy as np
 
 from wmr import waypoints
+from wmr._jit import njit
 
 __all__ = ["ReferenceKind", "KINDS", "path_derivatives", "sample", "ReferenceSampler"]
+
+
+def _elementwise(path, t, *args):
+    """``path(t_flat, *args) -> (6, n)`` on the times ``t`` of any shape: the six arrays."""
+    t = np.asarray(t, dtype=float)
+    out = path(np.ascontiguousarray(t).reshape(-1), *args)
+    return tuple(out[j].reshape(t.shape) for j in range(6))
+
+
+@njit
+def _lemniscate_path(t, a, W):
+    out = np.empty((6, t.size))
+    W2 = W * W  # not W**2: float ** raises OverflowError where * gives inf
+    for i in range(t.size):
+        phi = W * t[i]
+        s1, c1, s2, c2 = math.sin(phi), math.cos(phi), math.sin(2 * phi), math.cos(2 * phi)
+        out[0, i] = a * s1
+        out[1, i] = 0.5 * a * s2
+        out[2, i] = a * W * c1
+        out[3, i] = a * W * c2
+        out[4, i] = -a * W2 * s1
+        out[5, i] = -2 * a * W2 * s2
+    return out
 
 
 def _lemniscate(params, t):
     """Gerono: ``phi = 2 pi t / period``, ``x = a sin(phi)``, ``y = a sin(phi) cos(phi) =
     (a/2) sin(2 phi)``, with ``a = size``."""
-    a, W = params["size"], 2.0 * math.pi / params["period"]
-    phi = W * t
-    s1, c1, s2, c2 = np.sin(phi), np.cos(phi), np.sin(2 * phi), np.cos(2 * phi)
-    W2 = W * W  # not W**2: float ** raises OverflowError where * gives inf
-    return a * s1, 0.5 * a * s2, a * W * c1, a * W * c2, -a * W2 * s1, -2 * a * W2 * s2
+    return _elementwise(_lemniscate_path, t, params["size"], 2.0 * math.pi / params["period"])
+
+
+@njit
+def _sinusoid_path(t, s, A, w):
+    out = np.empty((6, t.size))
+    for i in range(t.size):
+        sn, cs = math.sin(w * t[i]), math.cos(w * t[i])
+        out[0, i] = s * t[i]
+        out[1, i] = A * sn
+        out[2, i] = s + 0.0
+        out[3, i] = A * w * cs
+        out[4, i] = 0.0
+        out[5, i] = -A * w * w * sn
+    return out
 
 
 def _sinusoid(params, t):
     """``x = speed t``, ``y = amplitude sin(omega t)``."""
-    s, A, w = params["speed"], params["amplitude"], params["omega"]
-    sn, cs = np.sin(w * t), np.cos(w * t)
-    zero = np.zeros_like(t)
-    return s * t, A * sn, s + zero, A * w * cs, zero, -A * w * w * sn
+    return _elementwise(_sinusoid_path, t, params["speed"], params["amplitude"], params["omega"])
+
+
+@njit
+def _circle_path(t, R, W):
+    out = np.empty((6, t.size))
+    W2 = W * W
+    for i in range(t.size):
+        phi = W * t[i]
+        sn, cs = math.sin(phi), math.cos(phi)
+        out[0, i] = R * cs
+        out[1, i] = R * sn
+        out[2, i] = -R * W * sn
+        out[3, i] = R * W * cs
+        out[4, i] = -R * W2 * cs
+        out[5, i] = -R * W2 * sn
+    return out
 
 
 def _circle(params, t):
     """``phi = 2 pi t / period``, ``x = radius cos(phi)``, ``y = radius sin(phi)``."""
-    R, W = params["radius"], 2.0 * math.pi / params["period"]
-    phi = W * t
-    sn, cs = np.sin(phi), np.cos(phi)
-    W2 = W * W
-    return R * cs, R * sn, -R * W * sn, R * W * cs, -R * W2 * cs, -R * W2 * sn
+    return _elementwise(_circle_path, t, params["radius"], 2.0 * math.pi / params["period"])
 
 
 @dataclass(frozen=True)
@@ -128,14 +171,37 @@ def _columns(kind, params, t):
     """Columns of a reference sample except that theta_r is wrapped (atan2)."""
     x, y, xd, yd, xdd, ydd = path_derivatives(kind, params, t)
     out = np.empty((np.size(t), 5))
-    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # see path_derivatives
-        speed2 = xd * xd + yd * yd
-        out[:, 0] = x
-        out[:, 1] = y
-        out[:, 2] = np.arctan2(yd, xd)
-        out[:, 3] = np.sqrt(speed2)
-        out[:, 4] = np.where(speed2 > 0.0, (xd * ydd - yd * xdd) / speed2, 0.0)
+    _fill_columns(*(np.ascontiguousarray(c, dtype=float).reshape(-1)
+                    for c in (x, y, xd, yd, xdd, ydd)), out)  # fmt: skip
     return out
+
+
+@njit
+def _fill_columns(x, y, xd, yd, xdd, ydd, out):
+    """``(x_r, y_r, atan2(y', x'), |v|, w_r)`` per row (``w_r = 0`` where the speed is 0)."""
+    for i in range(out.shape[0]):
+        speed2 = xd[i] * xd[i] + yd[i] * yd[i]
+        out[i, 0] = x[i]
+        out[i, 1] = y[i]
+        out[i, 2] = math.atan2(yd[i], xd[i])
+        out[i, 3] = math.sqrt(speed2)
+        out[i, 4] = (xd[i] * ydd[i] - yd[i] * xdd[i]) / speed2 if speed2 > 0.0 else 0.0
+
+
+@njit
+def _unwrap(heading, prev, turns):
+    """Unwrap ``heading`` (wrapped, in place) by counting whole turns in integers: each step's
+    jump from ``prev`` (the previous wrapped value) is ``rint(jump / 2 pi)`` turns (none for a
+    non-finite one); returns ``(turns, last wrapped value)`` for the next chunk."""
+    two_pi = 2 * math.pi
+    for i in range(heading.size):
+        wrapped = heading[i]
+        jump = np.rint((wrapped - prev) / two_pi)
+        if math.isfinite(jump):
+            turns -= np.int64(jump)
+        heading[i] = wrapped + two_pi * turns
+        prev = wrapped
+    return turns, prev
 
 
 class ReferenceSampler:
@@ -162,14 +228,12 @@ class ReferenceSampler:
         out = _columns(self.kind, self.params, np.arange(k0, k1) * self.dt)
         if k1 == k0:
             return out
-        wrapped = out[:, 2].copy()
-        prev = wrapped[0] if self._last_wrapped is None else self._last_wrapped
-        jumps = np.rint(np.diff(np.concatenate(([prev], wrapped))) / (2 * math.pi))
-        jumps[~np.isfinite(jumps)] = 0.0  # a non-finite heading (absurd parameters) adds no turn
-        turns = self._turns - np.cumsum(jumps.astype(np.int64))
-        out[:, 2] = wrapped + 2 * math.pi * turns
-        self._turns = int(turns[-1])
-        self._last_wrapped = float(wrapped[-1])
+        prev = out[0, 2] if self._last_wrapped is None else self._last_wrapped
+        heading = np.ascontiguousarray(out[:, 2])
+        turns, last = _unwrap(heading, prev, self._turns)
+        out[:, 2] = heading
+        self._turns = int(turns)
+        self._last_wrapped = float(last)
         self._next_k = k1
         return out
 

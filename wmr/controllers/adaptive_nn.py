@@ -61,9 +61,10 @@ import numpy as np
 from wmr import nn
 from wmr._jit import njit
 from wmr._settings import check, positive
+from wmr._shared import SHARED
 from wmr.controllers import backstepping
 from wmr.ekf import repair_covariance, weight_update
-from wmr.kinematics import INTEGRATORS, step_jacobians, tracking_error, wrap_angle
+from wmr.kinematics import INTEGRATORS, step_jacobians_into, tracking_error_parts, wrap_angle
 
 __all__ = ["Settings", "State", "STATE_NAMES", "pack", "final_state", "law"]
 
@@ -81,7 +82,11 @@ _S_SIZE = 17
 P_FLOOR = 1e-12
 
 Params = namedtuple(
-    "Params", "gains printed_rotation integrator n_h q_diag R Hn H work v_max w_max")
+    "Params", "gains printed_rotation integrator n_h q_diag R Hn H work v_max w_max scratch")
+# The run's scratch (``Params.scratch``, overwritten by each step): the plant Jacobian G (3 x 2),
+# the innovation, the weight filter's small matrices, the network's output, input and hidden
+# activations (the last n_h entries).
+_G, _NU, _SMALL, _Z, _PHI, _HID = 0, 6, 9, 36, 38, 44
 
 
 @dataclass(frozen=True)
@@ -119,11 +124,18 @@ def pack(settings: Settings, scenario, rng):
     """``(p, s, theta, P)``: output layer of the compensator initialised to zero."""
     n = nn.n_weights(N_IN, settings.hidden, N_OUT)
     theta = nn.init_weights(rng, N_IN, settings.hidden, N_OUT, output_scale=0.0)
-    p = Params(np.array(settings.gains), settings.printed_rotation,
-               INTEGRATORS[scenario.integrator], settings.hidden, np.full(n, settings.q),
-               settings.r * np.eye(3), np.zeros((N_OUT, n)), np.zeros((3, n)),
-               np.zeros((3, 3, n)), scenario.limits.v_max, scenario.limits.w_max)  # fmt: skip
-    return p, np.zeros(_S_SIZE), theta, settings.p0 * np.eye(n)
+
+    def build():  # what the runs share (read only): gains, the filter's Q and R, P0
+        return (np.array(settings.gains), np.full(n, settings.q), settings.r * np.eye(3),
+                settings.p0 * np.eye(n))  # fmt: skip
+
+    gains, q_diag, R, P0 = SHARED.get("adaptive-nn", (settings, scenario.limits),
+                                      scenario.integrator, build)  # fmt: skip
+    p = Params(gains, settings.printed_rotation, INTEGRATORS[scenario.integrator],
+               settings.hidden, q_diag, R, np.zeros((N_OUT, n)), np.zeros((3, n)),
+               np.zeros((3, 3, n)), scenario.limits.v_max, scenario.limits.w_max,
+               np.zeros(_HID + settings.hidden))  # fmt: skip
+    return p, np.zeros(_S_SIZE), theta, P0.copy()
 
 
 @dataclass(frozen=True)
@@ -158,35 +170,42 @@ def final_state(p, s, theta, P) -> State:
 
 
 @njit
-def _features(e, ref):
-    phi = np.empty(N_IN)
+def _features_into(e, ref, phi):
+    """The compensator's input ``(e1, e2, sin e3, cos e3 - 1, v_r, w_r)`` into ``phi`` (6,)."""
     phi[0] = e[0]
     phi[1] = e[1]
     phi[2] = math.sin(e[2])
     phi[3] = math.cos(e[2]) - 1.0
     phi[4] = ref[3]
     phi[5] = ref[4]
-    return phi
+
+
+@njit
+def _buffers(p):
+    """Views of the run's scratch: ``G, innovation, small, z, phi, h``."""
+    b = p.scratch
+    return (b[_G:_NU].reshape((3, 2)), b[_NU:_SMALL], b[_SMALL:_Z].reshape((3, 3, 3)),
+            b[_Z:_PHI], b[_PHI:_HID], b[_HID : _HID + p.n_h])  # fmt: skip
 
 
 @njit
 def adapt(p, s, theta, P, q_hat, ref, dt):
     """EKF step on the compensator weights from the error the last input left (see module doc)."""
-    phi = s[_S_PHI : _S_PHI + N_IN].copy()
-    _, h = nn.forward(theta, phi, p.n_h, N_OUT)
+    G, innovation, small, z, _, h = _buffers(p)
+    phi = s[_S_PHI : _S_PHI + N_IN]  # the previous network input (read only here)
+    nn.forward_into(theta, phi, p.n_h, N_OUT, z, h)
     nn.weight_jacobian(theta, phi, p.n_h, N_OUT, h, p.Hn)
     for c in range(N_OUT):  # a saturated input did not depend on the weights
         if s[_S_SAT + c] != 0.0:
             p.Hn[c, :] = 0.0
-    _, G = step_jacobians(s[_S_Q : _S_Q + 3], s[_S_U : _S_U + 2], dt, p.integrator)
+    step_jacobians_into(s[_S_Q : _S_Q + 3], s[_S_U : _S_U + 2], dt, p.integrator, None, G)
     for i in range(3):  # H = G Hn, written out (no BLAS call in the loop)
         for b in range(p.H.shape[1]):
             p.H[i, b] = G[i, 0] * p.Hn[0, b] + G[i, 1] * p.Hn[1, b]
-    innovation = np.empty(3)
     innovation[0] = ref[0] - q_hat[0]
     innovation[1] = ref[1] - q_hat[1]
     innovation[2] = wrap_angle(ref[2] - q_hat[2])
-    nis = weight_update(theta, P, p.H, innovation, p.q_diag, p.R, p.work)
+    nis = weight_update(theta, P, p.H, innovation, p.q_diag, p.R, p.work, small)
     # a failed update (S not positive definite: NaN NIS, nothing changed) counts like a repair
     if repair_covariance(P, P_FLOOR) or not math.isfinite(nis):
         s[_S_REPAIRS] += 1.0
@@ -197,12 +216,13 @@ def law(p, s, theta, P, q_hat, ref, dt, u):
     """One DA-NN step: adapt the compensator, then backstepping plus compensator."""
     if s[_S_STARTED] != 0.0:
         adapt(p, s, theta, P, q_hat, ref, dt)
-    e = tracking_error(q_hat, ref, p.printed_rotation)
-    phi = _features(e, ref)
-    z, _ = nn.forward(theta, phi, p.n_h, N_OUT)
+    e1, e2, e3 = tracking_error_parts(q_hat, ref, p.printed_rotation)
+    _, _, _, z, phi, h = _buffers(p)
+    _features_into((e1, e2, e3), ref, phi)
+    nn.forward_into(theta, phi, p.n_h, N_OUT, z, h)
     v_r = ref[3]
-    u[0] = v_r * math.cos(e[2]) + p.gains[0] * e[0] + z[0]
-    u[1] = ref[4] + v_r * (p.gains[1] * e[1] + p.gains[2] * math.sin(e[2])) + z[1]
+    u[0] = v_r * math.cos(e3) + p.gains[0] * e1 + z[0]
+    u[1] = ref[4] + v_r * (p.gains[1] * e2 + p.gains[2] * math.sin(e3)) + z[1]
     # Saturate here (the simulator's clip is then a no-op) so the input remembered for the next
     # adaptation step is the one the plant receives.
     for c, limit in ((0, p.v_max), (1, p.w_max)):

@@ -19,7 +19,7 @@ import numpy as np
 
 from wmr._jit import njit
 from wmr._settings import check
-from wmr.kinematics import tracking_error
+from wmr.kinematics import tracking_error_parts
 
 __all__ = ["Settings", "State", "STATE_NAMES", "pack", "final_state", "law", "command"]
 
@@ -55,6 +55,9 @@ def pack(settings: Settings, scenario, rng: np.random.Generator):
     return p, np.zeros(0), np.zeros(0), np.zeros((0, 0))
 
 
+pack.uses_rng = False  # it draws nothing: the loop need not make the initialisation stream
+
+
 @dataclass(frozen=True)
 class State:
     """Backstepping has no controller state: the law is static."""
@@ -65,10 +68,11 @@ def final_state(p, s, theta, P) -> State:
     return State()
 
 
-@njit
+@njit(inline="always")
 def command(p, e, ref, u):
-    """Write Kanayama's command ``u = (v, w)`` for the tracking error ``e`` (eq. 6) and the
-    reference sample ``ref``, gains ``p[:3]`` (the law below, and ``adaptive_bsc``)."""
+    """Write Kanayama's command ``u = (v, w)`` for the tracking error ``e = (e1, e2, e3)`` (eq. 6;
+    a tuple of scalars or an array) and the reference sample ``ref``, gains ``p[:3]`` (the law
+    below, and ``adaptive_bsc``)."""
     v_r = ref[3]
     w_r = ref[4]
     u[0] = v_r * math.cos(e[2]) + p[0] * e[0]
@@ -78,4 +82,4 @@ def command(p, e, ref, u):
 @njit
 def law(p, s, theta, P, q_hat, ref, dt, u):
     """Write the backstepping input ``u = (v, w)`` for estimate ``q_hat`` and sample ``ref``."""
-    command(p, tracking_error(q_hat, ref, p[3] != 0.0), ref, u)
+    command(p, tracking_error_parts(q_hat, ref, p[3] != 0.0), ref, u)

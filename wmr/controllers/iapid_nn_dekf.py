@@ -30,10 +30,10 @@ from wmr._settings import check, positive
 from wmr.controllers import pid
 from wmr.controllers.pid import S_NN_ERR, S_Q, S_REPAIRS, S_STARTED, S_U
 from wmr.ekf import repair_covariance, weight_update
-from wmr.kinematics import tracking_error, wrap_angle
+from wmr.kinematics import tracking_error_parts, wrap_angle
 
 __all__ = ["Settings", "State", "STATE_NAMES", "N_IN", "pack", "pack_oracle", "final_state", "law",
-           "identifier_input"]
+           "identifier_input", "identifier_input_into"]
 
 #: Network inputs ``(v, w, cos theta, sin theta)``; outputs ``(x', y', theta')`` estimates.
 N_IN = 4
@@ -81,17 +81,23 @@ def pack(settings: Settings, scenario, rng, oracle: bool = False):
     """``(p, s, theta, P)``: PID parameters, network weights ``theta`` (n,) and covariance
     ``P0``.  ``oracle``: the identifier learns from the true poses (``p.truth``, written by the
     loop) instead of the estimates; the PID still acts on the estimate."""
-    n = nn.n_weights(N_IN, settings.hidden, N_OUT)
     source = pid.JacobianSource.NETWORK if settings.adapt else pid.JacobianSource.NONE
-    base = pid.make_params(settings, source, scenario, n_h=settings.hidden,
-                            printed_jacobian=settings.printed_jacobian,
-                            q_diag=np.full(n, settings.q),
-                            R=settings.r * np.eye(N_OUT))  # fmt: skip
-    p = Params(*base, H=np.zeros((N_OUT, n)), work=np.zeros((3, N_OUT, n)), oracle=bool(oracle),
+
+    def build():  # what the runs share (read only): the parameters' arrays and P0
+        n = nn.n_weights(N_IN, settings.hidden, N_OUT)
+        base = pid.make_params(settings, source, scenario, n_h=settings.hidden,
+                                printed_jacobian=settings.printed_jacobian,
+                                q_diag=np.full(n, settings.q),
+                                R=settings.r * np.eye(N_OUT),
+                                scratch=_scratch_size(settings.hidden))  # fmt: skip
+        return base, n, settings.p0 * np.eye(n)
+
+    base, n, P0 = pid.shared("iapid", settings, scenario, source, build)
+    p = Params(*base[:-1], np.zeros(base.scratch.size), H=np.zeros((N_OUT, n)),
+               work=np.zeros((3, N_OUT, n)), oracle=bool(oracle),
                truth=np.zeros(6))  # (true pose at t_k, true pose at t_{k-1})
     theta = nn.init_weights(rng, N_IN, settings.hidden, N_OUT, settings.output_scale)
-    P = settings.p0 * np.eye(n)
-    return p, pid.initial_state(settings), theta, P
+    return p, pid.initial_state(settings), theta, P0.copy()
 
 
 def pack_oracle(settings: Settings, scenario, rng):
@@ -135,16 +141,47 @@ def final_state(p, s, theta, P) -> State:
 def identifier_input(u, theta):
     """The identifier's input ``(v, w, cos theta, sin theta)``."""
     x = np.empty(N_IN)
-    x[0] = u[0]
-    x[1] = u[1]
-    x[2] = math.cos(theta)
-    x[3] = math.sin(theta)
+    identifier_input_into(u, theta, x)
     return x
 
 
 @njit
+def identifier_input_into(u, theta, x):
+    """:func:`identifier_input` written into ``x`` (4,)."""
+    x[0] = u[0]
+    x[1] = u[1]
+    x[2] = math.cos(theta)
+    x[3] = math.sin(theta)
+
+
+# The run's scratch (``Params.scratch``, overwritten by each step): after the PID family's own
+# entries, the identifier's input, output, hidden activations, innovation, input Jacobian and the
+# weight filter's small matrices (wmr.ekf.joseph_update).
+_X = pid.SCRATCH
+_Z = _X + N_IN
+_HID = _Z + N_OUT
+
+
+def _scratch_size(n_h: int) -> int:
+    return _HID + n_h + N_OUT + N_OUT * N_IN + 3 * N_OUT * N_OUT
+
+
+@njit
+def _buffers(p):
+    """Views of the identifier's scratch: ``x, z, h, innovation, Jx, small``."""
+    n_h = p.nn_n_h
+    b = p.scratch
+    nu = _HID + n_h
+    jx = nu + N_OUT
+    small = jx + N_OUT * N_IN
+    return (b[_X:_Z], b[_Z:_HID], b[_HID:nu], b[nu:jx], b[jx:small].reshape((N_OUT, N_IN)),
+            b[small : small + 3 * N_OUT * N_OUT].reshape((3, N_OUT, N_OUT)))  # fmt: skip
+
+
+@njit
 def identify(p, s, theta, P, q_hat, dt):
-    """Steps 1-2: weight-EKF update on the last transition, then the identified ``J_{k-1}``.
+    """Steps 1-2: weight-EKF update on the last transition, then the identified ``J_{k-1}``,
+    written into the state (``wmr.controllers.pid.jacobian_slot``) and returned (a view).
 
     The transition is the pose estimates' ``(q_hat_{k-1}, q_hat_k)``, or the true poses'
     (``p.truth``) for the oracle arm."""
@@ -152,34 +189,36 @@ def identify(p, s, theta, P, q_hat, dt):
         now, before = p.truth[0:3], p.truth[3:6]
     else:
         now, before = q_hat, s[S_Q : S_Q + 3]
-    x = identifier_input(s[S_U : S_U + 2], before[2])
-    z, h = nn.forward(theta, x, p.nn_n_h, N_OUT)
-    d = np.empty(N_OUT)
+    x, z, h, innovation, Jx, small = _buffers(p)
+    identifier_input_into(s[S_U : S_U + 2], before[2], x)
+    nn.forward_into(theta, x, p.nn_n_h, N_OUT, z, h)
     for i in range(2):
-        d[i] = (now[i] - before[i]) / dt
-    d[2] = wrap_angle(now[2] - before[2]) / dt
-    innovation = d - z
+        innovation[i] = (now[i] - before[i]) / dt - z[i]
+    innovation[2] = wrap_angle(now[2] - before[2]) / dt - z[2]
     s[S_NN_ERR] = math.sqrt(innovation[0] ** 2 + innovation[1] ** 2 + innovation[2] ** 2)
     nn.weight_jacobian(theta, x, p.nn_n_h, N_OUT, h, p.H)
-    nis = weight_update(theta, P, p.H, innovation, p.q_diag, p.R, p.work)
+    nis = weight_update(theta, P, p.H, innovation, p.q_diag, p.R, p.work, small)
     # a failed update (S not positive definite: NaN NIS, nothing changed) counts like a repair
     if repair_covariance(P, P_FLOOR) or not math.isfinite(nis):
         s[S_REPAIRS] += 1.0
     if p.nn_printed_jacobian:
-        Jx = nn.input_jacobian_printed(theta, x, p.nn_n_h, N_OUT)
+        Jx[:, :] = nn.input_jacobian_printed(theta, x, p.nn_n_h, N_OUT)
     else:
-        _, h = nn.forward(theta, x, p.nn_n_h, N_OUT)
-        Jx = nn.input_jacobian(theta, x, p.nn_n_h, N_OUT, h)
-    return dt * Jx[:, 0:2].copy()
+        nn.forward_into(theta, x, p.nn_n_h, N_OUT, z, h)
+        nn.input_jacobian_into(theta, x, p.nn_n_h, N_OUT, h, Jx)
+    J = pid.jacobian_slot(s)
+    for i in range(3):
+        for j in range(2):
+            J[i, j] = dt * Jx[i, j]
+    return J
 
 
 @njit
 def law(p, s, theta, P, q_hat, ref, dt, u):
     """One IAPID-NN-DEKF step: identify, tune the gains (SGD), apply eq. (7)."""
-    e = tracking_error(q_hat, ref, p.printed_rotation)
+    e = tracking_error_parts(q_hat, ref, p.printed_rotation)
     if s[S_STARTED] != 0.0:
         J = identify(p, s, theta, P, q_hat, dt)
-        pid.store_jacobian(s, J)
         if p.jacobian_source != pid.JacobianSource.NONE:  # adapt = false: identify only
             pid.adapt_gains(p, s, J, e, q_hat, ref, dt)
     pid.pid_output(p, s, e, ref, dt, u)

@@ -37,7 +37,8 @@ import numpy as np
 
 from wmr._jit import njit
 from wmr._settings import check
-from wmr.kinematics import INTEGRATORS, rotation, step_jacobians, tracking_error
+from wmr._shared import SHARED
+from wmr.kinematics import INTEGRATORS, step_jacobians_into, tracking_error_parts
 
 __all__ = [
     "Settings",
@@ -96,8 +97,10 @@ class JacobianSource(IntEnum):
 Params = namedtuple(
     "Params",
     "K_min K_max mu alpha exact_gradient jacobian_per_second feed_forward printed_rotation "
-    "jacobian_source integrator nn_n_h nn_printed_jacobian q_diag R v_max w_max",
+    "jacobian_source integrator nn_n_h nn_printed_jacobian q_diag R v_max w_max scratch",
 )
+#: Entries of ``Params.scratch`` the PID family's SGD step uses (the per-second Jacobian, 3 x 2).
+SCRATCH = 6
 
 
 @dataclass(frozen=True)
@@ -171,7 +174,8 @@ class Settings:
 def make_params(settings: Settings, source: JacobianSource, scenario, **nn) -> Params:
     """Jitted-side parameters: the Jacobian ``source`` of the SGD step, the scenario's
     integrator and actuator limits; ``nn`` holds the network size and weight-filter matrices for
-    ``iapid-nn-dekf``."""
+    ``iapid-nn-dekf`` (and the size of its ``scratch``: the run's buffers, overwritten by each
+    step, so the law allocates nothing)."""
     return Params(
         K_min=np.array(settings.gain_min),
         K_max=np.array(settings.gain_max),
@@ -189,6 +193,7 @@ def make_params(settings: Settings, source: JacobianSource, scenario, **nn) -> P
         R=nn.get("R", np.zeros((0, 0))),
         v_max=scenario.limits.v_max,
         w_max=scenario.limits.w_max,
+        scratch=np.zeros(nn.get("scratch", SCRATCH)),
     )
 
 
@@ -205,12 +210,24 @@ class FixedSettings(Settings):
     adapt: bool = False
 
 
+def shared(kind: str, settings, scenario, source, build):
+    """``build()`` made once per ``kind`` of pack, settings, Jacobian ``source`` and the scenario's
+    limits and integrator (what :func:`make_params` reads), and shared by the runs
+    (``wmr._shared``): the laws only read the arrays of the parameters; each run gets its own
+    ``scratch`` and whatever else a law writes."""
+    return SHARED.get(kind, (settings, scenario.limits), (int(source), scenario.integrator), build)
+
+
 def pack(settings: Settings, scenario, rng):
     """``(p, s, theta, P)`` for ``pid``/``adaptive-pid``: no network, so ``theta`` and ``P`` are
     empty."""
     source = JacobianSource.MODEL if settings.adapt else JacobianSource.NONE
-    p = make_params(settings, source, scenario)
+    p = shared("pid", settings, scenario, source, lambda: make_params(settings, source, scenario))
+    p = Params(*p[:-1], np.zeros(SCRATCH))  # the run's own scratch (the last field)
     return p, initial_state(settings), np.zeros(0), np.zeros((0, 0))
+
+
+pack.uses_rng = False  # it draws nothing: the loop need not make the initialisation stream
 
 
 @dataclass(frozen=True)
@@ -246,9 +263,12 @@ def final_state(p, s, theta, P) -> State:
     return State(**state_fields(s))
 
 
-@njit
+@njit(inline="always")
 def pid_output(p, s, e, ref, dt, u):
     """Eq. (7): update integrals/derivatives in ``s``, write ``u``, store the regressor of eq. (15).
+
+    ``e`` is the error of eq. (6), an array (3,) or the tuple of
+    ``wmr.kinematics.tracking_error_parts`` (the laws' allocation-free form).
 
     The regressor ``dU/dK = [[e1, I[e1], D[e1], 0, 0, 0], [0, 0, 0, s, I[s], D[s]]]`` is kept in
     ``s[S_PHI:S_PHI+6]`` as ``(e1, I[e1], D[e1], s, I[s], D[s])`` for the next SGD step.
@@ -286,7 +306,7 @@ def pid_output(p, s, e, ref, dt, u):
             phi[3 * c : 3 * c + 3] = 0.0
 
 
-@njit
+@njit(inline="always")
 def heading_term(p, e, q, q_r):
     """``h = e^T Gamma dT_e/dtheta (q_r - q)``: how the error frame's turn with the heading moves
     the cost ``F = e^T Gamma e / 2`` (the term of the exact SGD gradient the paper drops, E5a).
@@ -322,7 +342,7 @@ def heading_term(p, e, q, q_r):
     return p.alpha[0] * e1e2 - p.alpha[1] * e1e2
 
 
-@njit
+@njit(inline="always")
 def sgd_gain_step(p, s, J, e, theta, h):
     """One SGD step of eqs. (9)-(17) on the gains in ``s``, with the Jacobian ``J`` (3, 2).
 
@@ -363,26 +383,29 @@ def sgd_gain_step(p, s, J, e, theta, h):
         ``h`` skips the term, so the exact gradient with ``alpha1 = alpha2`` is the approximate
         one bit for bit.
     """
-    T = rotation(theta, p.printed_rotation)
-    ge = np.empty(3)  # Gamma e
-    for i in range(3):
-        ge[i] = p.alpha[i] * e[i]
-    te = np.empty(3)  # T_e^T Gamma e, written out (no BLAS call in the loop)
-    for j in range(3):
-        te[j] = T[0, j] * ge[0] + T[1, j] * ge[1] + T[2, j] * ge[2]
-    g0 = J[0, 0] * te[0] + J[1, 0] * te[1] + J[2, 0] * te[2]  # (J^T T_e^T Gamma e)_v
-    g1 = J[0, 1] * te[0] + J[1, 1] * te[1] + J[2, 1] * te[2]  # (...)_w
+    # T_e^T Gamma e with T_e = [[c, sn, 0], [+-sn, c, 0], [0, 0, 1]] (wmr.kinematics.rotation),
+    # written out with every term of the 3 x 3 product (no allocation, no BLAS call)
+    c = math.cos(theta)
+    sn = math.sin(theta)
+    t10 = sn if p.printed_rotation else -sn
+    ge0 = p.alpha[0] * e[0]  # Gamma e
+    ge1 = p.alpha[1] * e[1]
+    ge2 = p.alpha[2] * e[2]
+    te0 = c * ge0 + t10 * ge1 + 0.0 * ge2
+    te1 = sn * ge0 + c * ge1 + 0.0 * ge2
+    te2 = 0.0 * ge0 + 0.0 * ge1 + 1.0 * ge2
+    g0 = J[0, 0] * te0 + J[1, 0] * te1 + J[2, 0] * te2  # (J^T T_e^T Gamma e)_v
+    g1 = J[0, 1] * te0 + J[1, 1] * te1 + J[2, 1] * te2  # (...)_w
     if h != 0.0:
         g0 -= h * J[2, 0]
         g1 -= h * J[2, 1]
-    phi = s[S_PHI : S_PHI + 6]
     for i in range(6):
         g = g0 if i < 3 else g1
-        k = s[S_K + i] + p.mu[i] * g * phi[i]
+        k = s[S_K + i] + p.mu[i] * g * s[S_PHI + i]
         s[S_K + i] = min(max(k, p.K_min[i]), p.K_max[i])
 
 
-@njit
+@njit(inline="always")
 def adapt_gains(p, s, J, e, q_hat, ref, dt):
     """The SGD step of a law at step ``k``: settings applied, then :func:`sgd_gain_step`.
 
@@ -393,18 +416,23 @@ def adapt_gains(p, s, J, e, q_hat, ref, dt):
     """
     h = heading_term(p, e, q_hat, ref) if p.exact_gradient else 0.0
     if p.jacobian_per_second:
-        J = J / dt
-    sgd_gain_step(p, s, J, e, q_hat[2], h)
+        Js = p.scratch[0:6].reshape((3, 2))  # J / dt, in the run's scratch
+        for i in range(3):
+            for j in range(2):
+                Js[i, j] = J[i, j] / dt
+        sgd_gain_step(p, s, Js, e, q_hat[2], h)
+    else:
+        sgd_gain_step(p, s, J, e, q_hat[2], h)
 
 
-@njit
+@njit(inline="always")
 def store_jacobian(s, J):
     for i in range(3):
         for j in range(2):
             s[S_J + 2 * i + j] = J[i, j]
 
 
-@njit
+@njit(inline="always")
 def remember(s, q_hat, u):
     """Keep ``u_k`` and ``q_hat_k`` for the next step's causal Jacobian (E5b)."""
     s[S_U] = u[0]
@@ -414,13 +442,19 @@ def remember(s, q_hat, u):
     s[S_STARTED] = 1.0
 
 
+@njit(inline="always")
+def jacobian_slot(s):
+    """The Jacobian estimate ``J_{k-1}`` (3, 2) in the state ``s``: a view, written in place."""
+    return s[S_J : S_J + 6].reshape((3, 2))
+
+
 @njit
 def law(p, s, theta, P, q_hat, ref, dt, u):
     """``pid`` / ``adaptive-pid``: SGD step with the exact ZOH plant Jacobian, then eq. (7)."""
-    e = tracking_error(q_hat, ref, p.printed_rotation)
+    e = tracking_error_parts(q_hat, ref, p.printed_rotation)
     if p.jacobian_source != JacobianSource.NONE and s[S_STARTED] != 0.0:
-        _, J = step_jacobians(s[S_Q : S_Q + 3], s[S_U : S_U + 2], dt, p.integrator)
-        store_jacobian(s, J)
+        J = jacobian_slot(s)  # G = dq_k/du_{k-1} of the ZOH step, written into the state
+        step_jacobians_into(s[S_Q : S_Q + 3], s[S_U : S_U + 2], dt, p.integrator, None, J)
         adapt_gains(p, s, J, e, q_hat, ref, dt)
     pid_output(p, s, e, ref, dt, u)
     remember(s, q_hat, u)

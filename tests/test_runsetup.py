@@ -1,0 +1,99 @@
+"""The run's set-up (``wmr.runsetup``): what the runs of a scenario share is built once and gives
+the numbers a fresh build gives, and the shared parts are never written by a run.
+
+Oracles: numpy's own ``SeedSequence.spawn`` for the streams; a run with an emptied store (every
+shared part rebuilt) for the shared set-up; the tables' bytes before and after runs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from numpy.testing import assert_array_equal
+
+from wmr import controllers, loop, runsetup
+from wmr import scenario as scn
+from wmr.sim import simulate
+
+
+@pytest.mark.parametrize("seed", [0, 7, 2**40, [3, 1, 4]])
+def test_seed_sequences_are_the_spawned_children(seed):
+    for a, b in zip(runsetup.seed_sequences(seed), np.random.SeedSequence(seed).spawn(2),
+                    strict=True):  # fmt: skip
+        assert_array_equal(np.random.default_rng(a).standard_normal(50),
+                           np.random.default_rng(b).standard_normal(50))  # fmt: skip
+
+
+@pytest.mark.parametrize("controller", list(controllers.REGISTRY))
+def test_shared_set_up_gives_the_numbers_of_a_fresh_one(controller):
+    """A run on set-up shared with earlier runs (other seeds, other controllers, a longer run of
+    the same reference) equals the run on set-up built afresh, bit for bit; and the shared
+    tables (reference, filter matrices, plant table) are not written by the runs."""
+    sc = dataclasses.replace(scn.load(scn.builtin("sinusoid-perturbed")), duration=3.0)
+    runsetup.SHARED.clear()
+    fresh = simulate(sc, controller, 5)
+    long = dataclasses.replace(sc, duration=6.0)  # the table grows; the short run reads a prefix
+    for name in controllers.NAMES:
+        simulate(long, name, 1, keep_trajectory=False)
+    run = loop.prepare(sc, controller, 5)
+    shared = [run.reference, run.Qp, run.Rp, run.plant_table, run.disturbance]
+    before = [a.copy() for a in shared]
+    again = simulate(sc, controller, 5)
+    for name in ("q", "q_hat", "u", "state", "ref"):
+        assert_array_equal(getattr(again, name), getattr(fresh, name), err_msg=name)
+    assert again.rmse == fresh.rmse
+    for a, b in zip(shared, before, strict=True):
+        assert_array_equal(a, b)
+
+
+def test_a_scenario_copy_shares_its_unchanged_parts():
+    """``dataclasses.replace`` keeps the parts it does not change: the copy reads the same
+    reference table (shared, not rebuilt); a changed reference gets its own."""
+    sc = scn.load(scn.builtin("lemniscate"))
+    copy = dataclasses.replace(sc, seed=3)
+    assert runsetup.reference_table(copy) is runsetup.reference_table(sc)
+    other = dataclasses.replace(sc, reference=scn.ReferenceSpec("circle", {"radius": 1.0,
+                                                                           "period": 20.0}))
+    assert not np.array_equal(runsetup.reference_table(other), runsetup.reference_table(sc))
+
+
+class _Wrapped:
+    """A Python-level controller: backstepping's law; with ``nested`` it also simulates a short
+    run of its own at every step (as a controller with a model rollout inside would)."""
+
+    nested = False
+
+    def __init__(self, settings, scenario, rng):
+        from wmr.controllers import backstepping
+
+        self.law = backstepping.law
+        self.p, self.s, self.theta, self.P = backstepping.pack(settings, scenario, rng)
+        self.short = dataclasses.replace(scenario, duration=10 * scenario.dt)
+        self.u = np.zeros(2)
+
+    def step(self, q_hat, ref, dt):
+        if self.nested:
+            simulate(self.short, "backstepping", 9, keep_trajectory=False)
+        self.law(self.p, self.s, self.theta, self.P, q_hat, ref, dt, self.u)
+        return self.u[0], self.u[1]
+
+
+class _Nested(_Wrapped):
+    nested = True
+
+
+def test_a_run_inside_a_python_controller_leaves_the_outer_run_alone(monkeypatch):
+    """The thread's noise buffer serves the compiled kernel only: a run started from inside a
+    Python-level controller's step (the Python driver) must not overwrite the outer run's noise."""
+    from wmr.controllers import PyController, backstepping
+
+    sc = dataclasses.replace(scn.load(scn.builtin("lemniscate")), duration=0.5)
+    for name, cls in (("bsc-py", _Wrapped), ("bsc-py-nested", _Nested)):
+        monkeypatch.setitem(controllers.REGISTRY, name,
+                            PyController(name, cls, backstepping.Settings))  # fmt: skip
+    plain = simulate(sc, "bsc-py", 4)
+    nested = simulate(sc, "bsc-py-nested", 4)
+    assert_array_equal(nested.q, plain.q)
+    assert_array_equal(plain.q, simulate(sc, "backstepping", 4).q)
