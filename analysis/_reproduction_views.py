@@ -47,19 +47,18 @@ def _tie_aware(rep: dict) -> list[str]:
     n_contra = sum(1 for c in contra.values() if c)
     n_big = sum(1 for c in contra.values() if any(x["mean_diff"] >= 1e-3 for x in c))
     k = len(next(iter(rep["scenarios"].values()))["paper_ranking"]["x"])
-    listed = "; ".join(
-        f"{sc} {axis}: " + ", ".join(f"{controllers.label(c['paper_worse'])} < "
-                                     f"{controllers.label(c['paper_better'])}" for c in cs)
-        for (sc, axis), cs in contra.items() if cs)  # fmt: skip
+    items = [f"- {sc} {axis}: " + ", ".join(f"{controllers.label(c['paper_worse'])} < "
+                                           f"{controllers.label(c['paper_better'])}" for c in cs)
+             for (sc, axis), cs in contra.items() if cs]  # fmt: skip
     return [f"**Tie-aware check.** Means that differ by less than the seed-to-seed noise "
-            "should not count against the paper, so the order is also tested pair by pair: "
+            "should not count against the paper.  So the order is also tested pair by pair: "
             "the paper's order is *contradicted* on an axis when a controller it ranks lower "
             "is significantly better in our runs (paired Wilcoxon over the seeds, Holm-"
             f"adjusted over the {k * (k - 1) // 2} pairs of the axis, family-wise "
             f"α = {rep['alpha']:g}).  Contradicted on {n_contra} of {len(contra)} (scenario, "
-            "axis) pairs" + (": " + listed if n_contra else "")
+            "axis) pairs" + (", as listed below" if n_contra else "")
             + f".  Counting only reversals larger than 1 mm (1 mrad for θ): "
-            f"{n_big} of {len(contra)}.", ""]  # fmt: skip
+            f"{n_big} of {len(contra)}.", "", *items, *([""] if items else [])]  # fmt: skip
 
 
 def _adaptation(rep: dict) -> list[str]:
@@ -120,23 +119,24 @@ def _equivalence(rep: dict) -> list[str]:
     metric, *others = eq["metrics"]
     margin_mm = f"{1e3 * eq['margin']:g} mm"
     level = f"{100 * (1 - 2 * eq['alpha']):g} %"
-    parts, n_eq, n_diff, n_all = [], 0, 0, 0
+    rows, parts, n_eq, n_diff, n_all = [], [], 0, 0, 0
     for pair, recs in _equivalence_pairs(eq, metric).items():
         k = sum(r["equivalent"] for r in recs.values())
         n_eq, n_all = n_eq + k, n_all + len(recs)
         n_diff += sum(r["different"] for r in recs.values())
-        detail = "; ".join(
-            f"{sc} {_mm(r['mean_diff'])} mm [{_mm(r['ci_low'])}, {_mm(r['ci_high'])}], TOST p = "
-            f"{fmt(r['p'], 3)}, Wilcoxon p (Holm) = {fmt(r['p_holm'], 3)}"
-            for sc, r in recs.items())  # fmt: skip
+        rows += [(_pair_label(pair), sc, _mm(r["mean_diff"]),
+                  f"[{_mm(r['ci_low'])}, {_mm(r['ci_high'])}]", fmt(r["p"], 3),
+                  fmt(r["p_holm"], 3), fmt(r["equivalent"])) for sc, r in recs.items()]
         parts.append(f"{_pair_label(pair)}: equivalent within ±{margin_mm} in {k} of "
-                     f"{len(recs)} scenarios ({detail})")  # fmt: skip
+                     f"{len(recs)} scenarios")  # fmt: skip
     n_seeds = next(iter(next(iter(eq["scenarios"].values())).values()))[metric]["n"]
     lines = [f"**Are IAPID-NN-DEKF, APID and the fixed PID the same controller?** Paired TOST "
-             f"of the {metric} RMSE at a margin of ±{margin_mm} over {n_seeds} seeds (mean "
-             f"difference A − B and its {level} interval; equivalence when the interval lies "
-             f"inside the margin), beside the two-sided Wilcoxon test of the same differences "
-             f"(Holm over the {n_all} tests): " + "; ".join(parts) + "."]  # fmt: skip
+             f"of the {metric} RMSE at a margin of ±{margin_mm} over {n_seeds} seeds, beside the "
+             f"two-sided Wilcoxon test of the same differences (Holm over the {n_all} tests; "
+             "the table below).  " + "; ".join(parts) + "."]  # fmt: skip
+    table = common.md_table(("pair (A − B)", "scenario", "mean difference [mm]",
+                             f"{level} interval [mm]", "TOST p", "Wilcoxon p (Holm)",
+                             f"equivalent within ±{margin_mm}"), rows)  # fmt: skip
     for other in others:
         counts = [f"{_pair_label(pair)} in {sum(r['equivalent'] for r in recs.values())} of "
                   f"{len(recs)}" for pair, recs in _equivalence_pairs(eq, other).items()]
@@ -144,17 +144,17 @@ def _equivalence(rep: dict) -> list[str]:
             lines.append(f"On the RMSE after the transient (t ≥ {rep['transient_s']:g} s), "
                          f"equivalent within ±{margin_mm}: " + ", ".join(counts) + ".")
     if n_eq == n_all:
-        lines.append(f"So the three are the same to within ±{margin_mm} on every scenario, "
-                     f"though {n_diff} of the {n_all} differences are detectable (Holm-adjusted "
+        lines.append(f"So the three are the same to within ±{margin_mm} on every scenario.  Yet "
+                     f"{n_diff} of the {n_all} differences are detectable (Holm-adjusted "
                      f"Wilcoxon p < {eq['alpha']:g}): equivalent at this margin, not identical.")
     else:
         lines.append(f"Equivalence within ±{margin_mm} holds in {n_eq} of the {n_all} "
                      f"(scenario, pair) tests; {n_diff} of the {n_all} differences are "
                      f"detectable (Holm-adjusted Wilcoxon p < {eq['alpha']:g}).")
-    lines.append(f"These hold {_defaults_clause(rep)}.  What adaptation does at other plants, "
-                 "SGD rate readings, initial gains and pose-filter noise is the regime study's "
-                 f"question (`analysis/regimes.py`, section \"{REGIMES_SECTION}\").")
-    return ["  ".join(lines), ""]
+    lines.append(f"These hold {_defaults_clause(rep)}.  What adaptation does on other plants "
+                 "and at tuned settings is the regime study's question (`analysis/regimes.py`, "
+                 f"section \"{REGIMES_SECTION}\").")
+    return ["  ".join(lines), "", *table, ""]
 
 
 def _order(names) -> str:
