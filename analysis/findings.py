@@ -188,10 +188,11 @@ def regimes(reg: dict) -> Finding:
     arms = [t for per in reg["tuning"]["arms"].values() for t in per.values()]
     n_dis = sum(not t["agreement"]["agree"] for t in arms)
     n_withheld = sum(v["verdict"] == "withheld" for e in mech.values() for v in e.values())
-    text = (f"With the same settings IAPID-NN-DEKF and APID, which then differ only in the "
-            f"Jacobian, are the same within 5 % on {len(same)} of "
+    text = (f"At the same default settings (the paper's SGD rate) IAPID-NN-DEKF and APID, which "
+            f"then differ only in the Jacobian, are the same within 5 % on {len(same)} of "
             f"{n_default} simulated plants"
-            + (": the identified Jacobian buys nothing. " if len(same) == n_default else ". ")
+            + (": at that rate the identified Jacobian changes nothing. "
+               if len(same) == n_default else ". ")
             +
             f"{ad} against {fx} pays on " + (", ".join(pays) or "none")
             + (f" (RMSE ratio {span(ba, pays)})" if pays else "") + " and costs on "
