@@ -173,7 +173,6 @@ def notes(record: dict) -> list[str]:
     fix = _lbl(best["raw"]["best-fixed"])
     arms = [t for p in record["tuning"]["arms"].values() for t in p.values()]
     n_dis = sum(not t["agreement"]["agree"] for t in arms)
-    withheld = sorted({m for m in v for c in v[m].values() if c["verdict"] == "withheld"})
     answer = [
         "At the shared default settings, where the two arms differ only in the Jacobian, "
         f"IAPID-NN-DEKF against APID on the same pose: {said(at_defaults(IA))}"
@@ -192,7 +191,6 @@ def notes(record: dict) -> list[str]:
         "defaults; the earlier regime verdicts (cells counted at a rate grid; then tuned "
         "contrasts read as effects of the arms) are retracted.",
     ]
-    assert withheld is not None
     dm = record["contrasts"][IA]["default"]["model"]
     rows = []
     if dm:
