@@ -133,22 +133,21 @@ def _r(v: dict) -> str:
     return f"{v['ratio']:.3f} [{lo:.3f}, {hi:.3f}], n = {v['n_stable']}"
 
 
-def _rp(v: dict) -> str:
-    """The mechanism's ratio and each pose source's verdict and ratio."""
-    return f"{_r(v)}; " + "; ".join(f"{p}: {x['verdict']} {_r(x)}"
-                                    for p, x in v["poses"].items())
-
-
-def _names(ms) -> str:
-    return ", ".join(ms) if ms else "none"
-
-
 def _lbl(c: str) -> str:
     return controllers.label(c)
 
 
-def notes(record: dict) -> list[str]:
-    """The answer first (at most five sentences), then the details, all from the record."""
+def notes(record: dict) -> str:
+    """The section's text, all from the record: the answer first, in short sentences (DESIGN
+    §7.8), then the details, their numbers in tables (Markdown; ``analysis.prose``'s rule)."""
+    blocks = [*_answer(record), _reading(), _defaults(record), *_per_pose(record),
+              _interactions(record), _tuning(record), _extra(record), _recovery(record),
+              _cost(record)]  # fmt: skip
+    return "\n\n".join(b for b in blocks if b)
+
+
+def _answer(record: dict) -> list[str]:
+    """The answer (at most six short sentences) and the study's scope (three more)."""
     v = record["verdict"]["mechanisms"]
     words = ("pays", "pays (divergence)", "costs", "costs (divergence)", "same within 5 %",
              "undecided", "depends on the pose source", "withheld")  # fmt: skip
@@ -173,96 +172,146 @@ def notes(record: dict) -> list[str]:
     fix = _lbl(best["raw"]["best-fixed"])
     arms = [t for p in record["tuning"]["arms"].values() for t in p.values()]
     n_dis = sum(not t["agreement"]["agree"] for t in arms)
+    same = set(at_defaults(IA)["same within 5 %"]) == set(d["mechanisms"])
     answer = [
-        "At the shared default settings, where the two arms differ only in the Jacobian, "
-        f"IAPID-NN-DEKF against APID on the same pose: {said(at_defaults(IA))}"
-        + (" (at the paper's SGD rate the identified Jacobian neither pays nor costs; what a "
-           "tuned rate does is withheld below)."
-           if set(at_defaults(IA)["same within 5 %"]) == set(d["mechanisms"]) else "."),
+        "**The answer.** At the shared default settings IAPID-NN-DEKF and APID differ only in "
+        "the Jacobian.",
+        f"There, IAPID-NN-DEKF against APID on the same pose: {said(at_defaults(IA))}.",
+        *(["At the paper's SGD rate the identified Jacobian neither pays nor costs; what a tuned "
+           "rate does is withheld below."] if same else []),
         f"At the defaults the best adaptive arm ({ada}) against the best fixed one ({fix}): "
         f"{said(at_defaults(KEY))}.",
         f"Tuned verdicts are withheld where an arm's two tuning restarts disagree ({n_dis} of "
         f"{len(arms)} tuned arms, at {d['per_setting']} evaluations per free setting) and on "
-        "the MuJoCo robot; the tuned ratios below are descriptive, not verdicts.",
+        "the MuJoCo robot.",
+        "The tuned ratios below are descriptive, not verdicts.",
+    ]
+    scope = [
         "Divergence at the tuned settings (10 m bound): "
-        + ", ".join(f"{_lbl(c)} {tot[c][0]} of {tot[c][1]}" for c in order if tot[c][0]) + ".",
+        + (", ".join(f"{_lbl(c)} {tot[c][0]} of {tot[c][1]}" for c in order if tot[c][0])
+           or "none") + ".",
         f"Level '{record['level']}': {s['tuned']} seeds at the tuned settings "
         f"({d['mujoco_seeds']} on the MuJoCo robot, lemniscate only), {s['default']} at the "
-        "defaults; the earlier regime verdicts (cells counted at a rate grid; then tuned "
-        "contrasts read as effects of the arms) are retracted.",
+        "defaults.",
+        "The earlier regime verdicts (cells counted at a rate grid; then tuned contrasts read as "
+        "effects of the arms) are retracted.",
     ]
+    return [" ".join(answer), " ".join(scope)]
+
+
+def _reading() -> str:
+    return ("**How to read the ratios.** A ratio is exp of the model's contrast: log RMSE after "
+            "the transient on the both-stable pairs, clustered by seed. The trajectories are "
+            "fixed effects, so an interval is over seeds on these trajectories. A ratio is "
+            "averaged over the pose sources, then given per pose source; n is the count of "
+            "both-stable pairs.")
+
+
+def _ci(e: dict) -> str:
+    return f"{e['ratio']:.3f} [{e['ratio_ci'][0]:.3f}, {e['ratio_ci'][1]:.3f}]"
+
+
+def _defaults(record: dict) -> str:
+    """IAPID - APID at the shared defaults (the identifier itself), per mechanism."""
     dm = record["contrasts"][IA]["default"]["model"]
+    if not dm:
+        return ""
+    v = record["verdict"]["mechanisms"]
+    rows = [[m, _ci(e), v.get(m, {}).get(IA, {}).get("default", {}).get("verdict", "—")]
+            for m, e in dm["mechanisms"].items()]  # fmt: skip
+    caveat = (f"The model has {dm['clusters']} seeds as clusters"
+              + (", too few for a cluster-robust interval to be trusted." if dm["clusters"] < 10
+                 else ".")
+              + " The fit's warnings: "
+              + ("; ".join(dict.fromkeys(dm["warnings"])) or "none") + ".")  # fmt: skip
+    return "\n".join([
+        "**At the defaults** (the same settings for IAPID and APID), IAPID - APID, ratio of "
+        "both-stable RMSE with its 95 % interval:", "",
+        *common.md_table(["mechanism", "ratio [95 % interval]", "verdict"], rows), "", caveat])
+
+
+def _per_pose(record: dict) -> list[str]:
+    """The two contrasts of the answer at the tuned settings: per mechanism, the verdict and the
+    ratio over both pose sources and on each."""
+    v = record["verdict"]["mechanisms"]
+    out = []
+    for name, what in ((KEY, "best adaptive - best fixed"), (IA, "IAPID - APID")):
+        rows = [[m, v[m][name]["verdict"], _r(v[m][name]),
+                 *[f"{x['verdict']}: {_r(x)}" for x in v[m][name]["poses"].values()]]
+                for m in record["mechanisms"]]  # fmt: skip
+        poses = list(v[record["mechanisms"][0]][name]["poses"])
+        out.append("\n".join([
+            f"**Tuned: {what}**, the verdict and the ratio of both-stable RMSE (95 % interval, "
+            "pairs), over both pose sources and on each:", "",
+            *common.md_table(["mechanism", "verdict", "both pose sources", *poses], rows)]))
+    out[-1] += ("\n\nAPID - PID and oracle - IAPID, with their verdicts, are in the verdict "
+                "table below.")
+    return out
+
+
+def _interactions(record: dict) -> str:
+    model = record["contrasts"][IA]["tuned"]["model"]
+    tests = model["tests"]
+    if not (tests["pose_source"] and tests["mechanism"]):
+        return "Interaction tests: too few cells."
+    return (f"Interactions of IAPID - APID: pose source p = {tests['pose_source']['p']:.3g}, "
+            + (f"trajectory p = {tests['trajectory']['p']:.3g}, " if tests["trajectory"] else "")
+            + f"mechanism p = {tests['mechanism']['p']:.3g} (cluster-robust Wald tests, "
+            f"{model['clusters']} clusters; the fit's warnings: {len(model['warnings'])}).")
+
+
+def _tuning(record: dict) -> str:
+    """Per tuned arm and pose source: whether its restarts agree, and optima on a box edge."""
     rows = []
-    if dm:
-        rows.append("At the defaults (the same settings for IAPID and APID), IAPID - APID: "
-                    + "; ".join(f"{m} {e['ratio']:.3f} [{e['ratio_ci'][0]:.3f}, "
-                                f"{e['ratio_ci'][1]:.3f}]" for m, e in dm["mechanisms"].items())
-                    + f" ({dm['clusters']} seeds as clusters"
-                    + (", too few for a cluster-robust interval to be trusted"
-                       if dm["clusters"] < 10 else "") + "; the fit's warnings: "
-                    f"{'; '.join(dict.fromkeys(dm['warnings'])) or 'none'}).")  # fmt: skip
-    for m in record["mechanisms"]:
-        rows.append(f"{m}: best adaptive - best fixed {v[m][KEY]['verdict']} ({_rp(v[m][KEY])}); "
-                    f"IAPID - APID {v[m][IA]['verdict']} ({_rp(v[m][IA])}); APID - PID "
-                    f"{v[m]['adaptive-pid - pid']['verdict']} "
-                    f"({_r(v[m]['adaptive-pid - pid'])}); oracle - IAPID "
-                    f"{v[m]['iapid-oracle - iapid-nn-dekf']['verdict']} "
-                    f"({_r(v[m]['iapid-oracle - iapid-nn-dekf'])}).")
-    agree = [f"{a}@{p}" for p, arms in record["tuning"]["arms"].items()
-             for a, t in arms.items() if not t["agreement"]["agree"]]  # fmt: skip
-    edge = [f"{a}@{p} ({', '.join(e['setting'] + ' ' + e['edge'] for e in t['edges'])})"
-            for p, arms in record["tuning"]["arms"].items() for a, t in arms.items()
-            if t["edges"]]  # fmt: skip
-    tests = record["contrasts"][IA]["tuned"]["model"]["tests"]
-    extra = [
-        "Ratios are exp of the model's contrast (log RMSE after the transient on the "
-        "both-stable pairs, clustered by seed; the trajectories are fixed effects, so an "
-        "interval is over seeds on these trajectories), averaged over the pose sources, then "
-        "per pose source; n is the count of both-stable pairs.",
-        *rows,
-        f"Interactions of IAPID - APID: pose source p = {tests['pose_source']['p']:.3g}, "
-        + (f"trajectory p = {tests['trajectory']['p']:.3g}, " if tests["trajectory"] else "")
-        + f"mechanism p = {tests['mechanism']['p']:.3g} (cluster-robust Wald tests, "
-        f"{record['contrasts'][IA]['tuned']['model']['clusters']} clusters; the fit's warnings: "
-        f"{len(record['contrasts'][IA]['tuned']['model']['warnings'])})."
-        if tests["pose_source"] and tests["mechanism"] else "Interaction tests: too few cells.",
-        f"Tuning restarts that disagree (spread above 5 % of the best objective): "
-        f"{_names(agree)}; optima on a box edge: {_names(edge)}.",
-        *_known(record),
-        _paper(record),
-        *_recovery(record),
-        f"Cost: {record['cost']['runs']:,} evaluation runs, "
-        f"{record['cost']['run_seconds_total']:.0f} s of running over the invocations that "
-        f"filled the stores; the last invocation ran {record['cost']['runs_this_time']:,} of "
-        f"them in {record['cost']['seconds']:.0f} s (tuning {record['cost']['tuning_seconds']:.0f}"
-        f" s; an arm tuned before is read back from its cache) on {record['cost']['engine']}.",
-    ]
-    return answer + extra
+    for p, arms in record["tuning"]["arms"].items():
+        for a, t in arms.items():
+            g = t["agreement"]
+            rows.append([a, p, f"{'agree' if g['agree'] else 'disagree'} (spread "
+                               f"{g['spread']:.3g}, tolerance {g['tolerance']:.3g})",
+                         ", ".join(e["setting"] + " " + e["edge"] for e in t["edges"]) or "—"])
+    return "\n".join([
+        "**Tuning.** Two restarts per arm and pose source; they disagree when their spread is "
+        "above 5 % of the best objective (the tolerance). An optimum on a box edge names the "
+        "setting and the edge.", "",
+        *common.md_table(["arm", "pose", "restarts", "optimum on a box edge"], rows)])
 
 
-def _known(record: dict) -> list[str]:
-    """The labelled upper bound: best adaptive against the fixed PID tuned per mechanism."""
+def _extra(record: dict) -> str:
+    """Two more contrasts per mechanism: the labelled upper bound (best adaptive against the
+    fixed PID tuned per mechanism) and the paper's asymmetric arm."""
     k = record.get("known_pid")
-    if not k or not k["model"]:
-        return []
-    parts = []
-    for m, e in k["model"]["mechanisms"].items():
-        more = [p for p, d in k["divergence"].items() if m in d and d[m]["p"] < 0.05
-                and d[m]["a_only"] > d[m]["b_only"]]  # fmt: skip
-        parts.append(f"{m} {e['ratio']:.3f} [{e['ratio_ci'][0]:.3f}, {e['ratio_ci'][1]:.3f}]"
-                     + (f" (the adaptive arm diverges more on the {', '.join(more)} pose)"
-                        if more else ""))
-    return [f"Upper bound ({k['label']}), ratio of both-stable RMSE: " + "; ".join(parts) + "."]
+    known = {}
+    if k and k["model"]:
+        for m, e in k["model"]["mechanisms"].items():
+            more = [p for p, d in k["divergence"].items() if m in d and d[m]["p"] < 0.05
+                    and d[m]["a_only"] > d[m]["b_only"]]  # fmt: skip
+            known[m] = _ci(e) + (f" (the adaptive arm diverges more on the {', '.join(more)} "
+                                 "pose)" if more else "")
+    paper = {}
+    for m, x in record["paper_arm"]["endpoints"].items():
+        t = [y for y in x["trajectories"].values() if y["n_stable"]]
+        if t:
+            paper[m] = f"{100 * float(np.median([y['rel_diff'] for y in t])):+.1f} %"
+    mechs = [m for m in record["mechanisms"] if m in known or m in paper]
+    if not mechs:
+        return ""
+    lead = [f"**Upper bound and the paper's arm.** Column 'upper bound': {k['label']}, as the "
+            "ratio of both-stable RMSE."] if known else ["**The paper's arm.**"]
+    lead.append(f"Column 'paper's arm': {record['paper_arm']['label']}, as the median relative "
+                "difference of the both-stable means over trajectories.")
+    header = ["mechanism", *(["upper bound"] if known else []), "paper's arm"]
+    rows = [[m, *([known.get(m, "—")] if known else []), paper.get(m, "—")] for m in mechs]
+    return "\n".join([" ".join(lead), "", *common.md_table(header, rows)])
 
 
-def _recovery(record: dict) -> list[str]:
-    """One sentence per pose source on the recovery after a change (tuned settings)."""
+def _recovery(record: dict) -> str:
+    """Per pose source and contrast, the recovery after a change (tuned settings)."""
     rec = record.get("recovery")
     if not rec:
-        return []
-    out = []
+        return ""
+    rows = []
     for pose, r in rec["poses"].items():
-        parts = []
+        n = min(x["n"] for arms in r["arms"].values() for x in arms.values())
         for name in (IA, KEY):
             cells = [x for x in r["contrasts"].get(name, {}).values() if x["n_stable"] > 1]
             if not cells:
@@ -270,25 +319,22 @@ def _recovery(record: dict) -> list[str]:
             rel = float(np.median([x["rel_diff"] for x in cells]))
             lower = sum(x["ci_high"] is not None and x["ci_high"] < 0 for x in cells)
             higher = sum(x["ci_low"] is not None and x["ci_low"] > 0 for x in cells)
-            parts.append(f"{name}: median {100 * rel:+.1f} % over {len(cells)} scenarios, lower "
-                         f"(95 % interval below 0) in {lower}, higher in {higher}")
-        n = min(x["n"] for arms in r["arms"].values() for x in arms.values())
-        out.append(f"Recovery on the {pose} pose (position RMSE over the {rec['window_s']:g} s "
-                   f"after the payload change or the disturbance's start, both-stable pairs of "
-                   f"{n} seeds): " + "; ".join(parts) + ".")
-    return out
+            rows.append([pose, name, n, len(cells), f"{100 * rel:+.1f} %", lower, higher])
+    return "\n".join([
+        f"**Recovery** (tuned settings): position RMSE over the {rec['window_s']:g} s after the "
+        "payload change or the disturbance's start, on the both-stable pairs. Lower and higher "
+        "count the scenarios whose 95 % interval lies below or above 0.", "",
+        *common.md_table(["pose", "contrast", "seeds", "scenarios", "median difference",
+                          "lower", "higher"], rows)])  # fmt: skip
 
 
-def _paper(record: dict) -> str:
-    e = record["paper_arm"]["endpoints"]
-    parts = []
-    for m, x in e.items():
-        t = [y for y in x["trajectories"].values() if y["n_stable"]]
-        if t:
-            rel = float(np.median([y["rel_diff"] for y in t]))
-            parts.append(f"{m} {100 * rel:+.1f} %")
-    return (f"The paper's asymmetric arm ({record['paper_arm']['label']}), median relative "
-            f"difference of the both-stable means over trajectories: {'; '.join(parts)}.")
+def _cost(record: dict) -> str:
+    c = record["cost"]
+    return (f"Cost: {c['runs']:,} evaluation runs, {c['run_seconds_total']:.0f} s of running over "
+            f"the invocations that filled the stores. The last invocation ran "
+            f"{c['runs_this_time']:,} of them in {c['seconds']:.0f} s (tuning "
+            f"{c['tuning_seconds']:.0f} s; an arm tuned before is read back from its cache) on "
+            f"{c['engine']}.")
 
 
 def table(record: dict) -> str:

@@ -21,6 +21,7 @@ import pytest
 
 from analysis import _calibration_methods as methods
 from analysis import _calibration_prior as prior
+from analysis import prose
 from wmr import scenario as scn
 from wmr.sim import simulate
 
@@ -511,6 +512,7 @@ def test_quick_study_is_whole_and_checks(quick):
               "Who wins under fair tuning", "retracted"):  # fmt: skip
         assert q in text
     assert "QUICK" in text
+    assert prose.long_sentences(text) == []  # the prose rule at this level's record too
 
 
 def test_quick_planted_truths_at_fixed_seeds(quick):

@@ -16,7 +16,7 @@ import pytest
 from analysis import _regimes_design as design
 from analysis import _regimes_report as report
 from analysis import _regimes_stats as rstats
-from analysis import regimes, tuning
+from analysis import prose, regimes, tuning
 
 PAPER = Path(__file__).resolve().parents[1] / "paper"
 RECORD = PAPER / "results" / "regimes.json"
@@ -167,6 +167,7 @@ def test_quick_run_is_whole_consistent_and_renders(quick):
     assert (out / "tables" / "regimes.md").read_text() == regimes.table(stored)
     text = regimes.render(stored)
     assert text.startswith(f"## {regimes.TITLE}\n")
+    assert prose.long_sentences(text) == []  # the prose rule at this level's record too
     assert "+23346" not in text and "pays by staying stable" not in text
     for pose in regimes.POSES:
         for _c, t in record["tuning"]["arms"][pose].items():
