@@ -27,7 +27,7 @@ reproduce: $(STAMP)
 
 # The notebooks' kernels import the studies (analysis/) from the checkout: PYTHONPATH says where.
 test: $(STAMP)
-	PYTHONPATH=$(CURDIR) $(BIN)/python -m pytest --nbval --nbval-sanitize-with notebooks/sanitize.cfg -n auto --dist loadfile
+	PYTHONPATH=$(CURDIR) $(BIN)/python -m pytest --nbval --nbval-sanitize-with notebooks/sanitize.cfg -n auto --dist loadfile --durations=15
 
 bench: $(STAMP)
 	$(BIN)/wmr bench --out paper

@@ -16,21 +16,23 @@ from wmr import study, sweep
 
 __all__ = ["SPEC", "throughput", "large_sweep"]
 
-#: A lemniscate sweep over the seeds only; ``{controller}``, ``{seeds}``, ``{duration}`` filled in.
+#: A sweep of one scenario over the seeds only; ``{controller}``, ``{seeds}`` filled in.
 SPEC = """\
 name = "bench-{controller}"
-scenarios = ["lemniscate.toml"]
+scenarios = ["scenario.toml"]
 controllers = ["{controller}"]
 seeds = {seeds}
 """
 
 
-def _spec(folder: Path, controller: str, seeds: int, duration: float) -> sweep.Spec:
+def _spec(folder: Path, controller: str, seeds: int, duration: float,
+          scenario: str = "lemniscate") -> sweep.Spec:  # fmt: skip
     from wmr import scenario as scn
 
-    text = scn.builtin("lemniscate").read_text().replace("duration = 40.0",
-                                                         f"duration = {duration}")  # fmt: skip
-    (folder / "lemniscate.toml").write_text(text)
+    text = scn.builtin(scenario).read_text()
+    if "duration = 40.0" not in text:
+        raise ValueError(f"scenario {scenario!r} has no 'duration = 40.0' line to cut")
+    (folder / "scenario.toml").write_text(text.replace("duration = 40.0", f"duration = {duration}"))
     path = folder / f"{controller}.toml"
     path.write_text(SPEC.format(controller=controller, seeds=seeds))
     return sweep.load_spec(path)
@@ -96,18 +98,23 @@ def idle_cost(workers: int = 2, seconds: float = 5.0) -> dict:
 
 
 def throughput(controllers=("iapid-nn-dekf", "pid"), workers: int = 2, quick: bool = False,
-               repeats: int = 2) -> dict:  # fmt: skip
+               repeats: int = 2, scenario: str = "lemniscate", runs: dict | None = None
+               ) -> dict:  # fmt: skip
     """Runs/s of the serial engine, a LocalCluster of ``workers`` and a loopback scheduler with
     ``workers`` worker processes, for each controller, ``repeats`` times interleaved (the best
-    rate of each engine is kept); rows checked equal across engines."""
+    rate of each engine is kept); rows checked equal across engines.  ``scenario``: a shipped
+    scenario's name (its 40 s runs); ``runs``: runs per controller (default: ~10 s per parallel
+    sweep on the lemniscate).  The engine's own costs (an empty task, an idle cluster) are
+    measured with the default scenario only."""
     # each parallel sweep runs ~10 s (a 4-5 s one measured 0.82-1.0 from run to run: noise)
-    runs = {"iapid-nn-dekf": 60 if quick else 600, "pid": 600 if quick else 10000}
-    out = {"workers": workers, "repeats": repeats, "controllers": {}}
+    runs = runs or {"iapid-nn-dekf": 60 if quick else 600, "pid": 600 if quick else 10000}
+    machinery = scenario == "lemniscate"
+    out = {"workers": workers, "repeats": repeats, "scenario": scenario, "controllers": {}}
     with tempfile.TemporaryDirectory(prefix="wmr-sweep-bench-") as tmp:
         tmp = Path(tmp)
         with study.LoopbackCluster(tmp / "cluster", workers=workers) as cluster:
             for c in controllers:
-                spec = _spec(tmp, c, runs.get(c, 400), 40.0)
+                spec = _spec(tmp, c, runs.get(c, 400), 40.0, scenario)
                 rates: dict = {"serial": [], "local": [], "dask": []}
                 for rep in range(repeats):  # interleaved; the best rate of each (least disturbed)
                     rates["serial"].append(_rate(spec, tmp / f"{c}-serial-{rep}", workers=1))
@@ -127,8 +134,10 @@ def throughput(controllers=("iapid-nn-dekf", "pid"), workers: int = 2, quick: bo
                     "dask_efficiency": dask / (workers * serial),
                     "rows_equal": bool(rows[0].equals(rows[1]) and rows[0].equals(rows[2])),
                 }  # fmt: skip
-            out["task_seconds"] = task_cost(cluster.address)
-    out["local_idle"] = idle_cost(workers, 2.0 if quick else 5.0)
+            if machinery:
+                out["task_seconds"] = task_cost(cluster.address)
+    if machinery:
+        out["local_idle"] = idle_cost(workers, 2.0 if quick else 5.0)
     per = out["controllers"].values()
     out["local"] = {"efficiency": min(v["local_efficiency"] for v in per)}
     out["dask"] = {"efficiency": min(v["dask_efficiency"] for v in per)}

@@ -27,6 +27,9 @@ Measured
 - ``python_controllers``: the Python-level controllers (``nmpc``) on a few runs of their own, the
   loop's cost per step and the distribution of the controller's own step
   (``analysis._py_controller_bench``);
+- ``mujoco``: the MuJoCo robot's plant per 10 ms control step at its shipped 2 ms and the ladder's
+  0.5 ms physics step, a whole run through the Python driver, and its 2-worker sweep efficiency
+  (``analysis._mujoco_bench``);
 - cost against the number of weights (hidden units) and against the number of workers;
 - peak resident memory (``ru_maxrss`` of this process and of its children).
 
@@ -54,8 +57,18 @@ import time
 
 import numpy as np
 
-from analysis import _against, _bench, _floor, _phases, _py_controller_bench, _sweep_bench, common
+from analysis import (
+    _against,
+    _bench,
+    _floor,
+    _mujoco_bench,
+    _phases,
+    _py_controller_bench,
+    _sweep_bench,
+    common,
+)
 from analysis._bench import clocks, per_step, steps_done
+from analysis._performance_views import notes, opening, table, tables
 from wmr import controllers, loop, sim
 from wmr import scenario as scn
 from wmr.study import Job, run_jobs
@@ -81,6 +94,10 @@ TARGETS = {
     "iapid_floor_ratio_max": 1.5,
     "run_overhead_ms_max": 0.05,
     "nmpc_step_median_ms_max": 0.5,  # issue 21: nmpc's own step, median
+    # issue 20: the MuJoCo plant per 10 ms control step at its shipped 2 ms physics step
+    # (median wall µs) and its 2-worker sweep efficiency (local cluster)
+    "mujoco_plant_us_max": 100.0,
+    "mujoco_sweep_efficiency_min": 0.85,
 }
 #: The targets :func:`check` asserts (ratios and correctness); absolute wall-time misses are
 #: recorded only.
@@ -149,6 +166,7 @@ def run(out, *, quick: bool = False, workers: int | None = None, against: str | 
     if against:
         rec["against"] = _against.compare(against, (*controllers.NAMES, "adaptive-pid~approximate"),
                                           pairs=3 if quick else 7, runs=5 if quick else 20)
+    rec["mujoco"] = _mujoco_bench.measure(quick, workers=2)
     rec["peak_rss_mb"] = _bench.rss_mb()
     rec["peak_rss_children_mb"] = _bench.rss_mb(resource.RUSAGE_CHILDREN)
     rss["end"] = rec["peak_rss_mb"]
@@ -177,7 +195,9 @@ def check(record: dict) -> None:
 
 def render(record: dict) -> str:
     """The report's section: the notes, the table and the figure."""
-    return common.section(TITLE, notes(record), tables(record), [FIGURE])
+    how = "How each figure was measured:\n\n" + "\n".join(f"- {n}" for n in notes(record))
+    return common.section(TITLE, opening(record), tables(record).rstrip() + "\n\n" + how,
+                          [FIGURE])  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------
@@ -409,187 +429,14 @@ def targets_met(rec: dict) -> dict:
         "nmpc_step_median": None if not (rec.get("python_controllers") or {}).get("nmpc")
         else rec["python_controllers"]["nmpc"]["step_ms"]["median"]
         <= t["nmpc_step_median_ms_max"],
+        "mujoco_plant": None if "mujoco" not in rec
+        else rec["mujoco"]["plant"][0]["median_us"] <= t["mujoco_plant_us_max"],
+        "mujoco_sweep_efficiency": None if not (rec.get("mujoco") or {}).get("sweep")
+        else rec["mujoco"]["sweep"]["local"]["efficiency"] >= t["mujoco_sweep_efficiency_min"],
     }  # fmt: skip
     if rec["quick"]:
         met["quick_under_2_min"] = rec["elapsed_s"] < t["quick_total_s_max"]
     return met
-
-
-# ---------------------------------------------------------------------------------------------
-# The record as prose, table and figure
-
-
-def notes(rec: dict) -> list[str]:
-    """The notes on how each figure was measured."""
-    n = rec["n_weights"]
-    steps = rec["python_control"][f"{SUBJECT}/jit"]["steps"]
-    return [
-        "Per-step figures: min over interleaved repeats (median beside it), compilation excluded; "
-        "us_per_step includes the Python set-up of a run (run_overhead_ms per run).",
-        f"Floor: floor_update, a standard-form EKF update (P += Q; HP = H P; S; K = (S^-1 HP)^T; "
-        f"P -= K HP), n = {n}, m = 3, loop-based, the 3 output rows fused and two rows of P per "
-        "pass (the blocking of wmr.ekf), timed inside a jitted "
-        "loop with a fixed realistic H (weight Jacobian at the initial weights), P0, Q, R of "
-        "iapid-nn-dekf.  floor_generic_m_us_per_step: the same without fusing the 3 output rows.",
-        "Ratios are judged on this thread's CPU time (time.thread_time), which leaves out the "
-        "time other processes hold the core; wall-clock figures are reported beside them.  "
-        "ratios.iapid_over_floor = median over rounds of (iapid-nn-dekf step / median of the 3 "
-        "floor timings taken right after it), CPU time; iapid_over_floor_wall_min_over_min "
-        "beside it.  python-control "
-        "ratios: each repeat times the nlsys loop, then the kernel (a full lemniscate run) right "
-        "after it; ratio = median of the per-repeat CPU-time ratios (wall min/min beside it).",
-        "weight_update_us_per_step: the library's wmr.ekf.weight_update (Joseph, O(n^2 m)) timed "
-        "the same way: the part of the closed-loop step that the floor stands for.",
-        "python_control_us_per_step: the iapid-nn-dekf closed loop as a python-control "
-        "discrete-time nlsys (wmr.nlsys.closed_loop: its update function calls the phases of "
-        "wmr.loop, sense, the controller law, saturate and actuate, on the state unpacked from "
-        "the nlsys state vector, with the noise and the reference as inputs), stepped by "
-        f"control.input_output_response over the first {steps} steps of the lemniscate with the "
-        "same noise and reference as simulate, so both sides do the same arithmetic "
-        "(max_abs_q_difference checks the trajectories agree).  Its ratio to the kernel is "
-        "information, not a target.",
-        "python_control_overhead: copy_only_nlsys is an nlsys with the same state whose update "
-        "only copies it, stepped the same way: python-control's own cost per step (including "
-        "storing every state), which no kernel speed removes.",
-        "Monte-Carlo: run_jobs on the engine (a Dask LocalCluster of worker processes, started "
-        "for each call: vs_workers and monte_carlo_1000_s include its start and stop, "
-        "which is why 2 workers can be slower than 1 on 100 runs); the workers load the "
-        "kernels from the disk cache the parent warmed; rows compared with the serial path field "
-        "by field.",
-        "peak_rss_children_mb is the largest child's high-water mark (the worker processes).",
-        "Absolute wall times depend on other load on the shared machine (machine.load_average_*).",
-        "sweep: wmr sweep over seeds of the lemniscate, one controller at a time, on the serial "
-        "engine, a Dask LocalCluster of 2 worker processes and a loopback scheduler with 2 worker "
-        "processes started as separate programs, interleaved; runs/s over each sweep's run phase "
-        "(engine up, kernels warm), the best of the repeats; efficiency = parallel runs/s / "
-        "(2 x serial runs/s); rows_equal: the three stores hold the same rows.",
-        "plant: the same runs on the ideal plant (its own kernel, the scenario's integrator) and "
-        f"on a true robot with {', '.join(f'{k} = {v}' for k, v in PLANT.items())} (wmr.plant: "
-        "delay line, exact first-order channels, Gauss-Legendre position), interleaved; ratio = "
-        "median of the paired CPU-time ratios.",
-        "The loop is compiled once per controller (wmr.loop.kernel) and cached on disk: "
-        "advance_cache counts the loads from the cache (hits) and compilations (misses) of this "
-        "process.", *([_py_controller_bench.NOTE] if rec.get("python_controllers") else []),
-        *(note for key, note in _NOTES_25.items() if key in rec),
-    ]
-
-
-#: Notes on what only newer records measure (shown when the record has it).
-_NOTES_25 = {"phases": _phases.NOTE, "against": _against.NOTE}
-
-
-def _targets_table(rec: dict) -> list[str]:
-    r, t, m = rec["ratios"], rec["targets"], targets_met(rec)
-
-    def ok(key):
-        return {True: "yes", False: "**no**", None: "—"}[m.get(key)]
-
-    mc = rec["monte_carlo_1000_s"]
-    return [
-        "| target | measured | target | met |", "|---|---:|---:|:---:|",
-        f"| iapid-nn-dekf step / floor | {r['iapid_over_floor']:.2f}x "
-        f"| <= {t['floor_ratio_max']:g}x | {ok('floor_ratio')} |",
-        "| python-control nlsys step / iapid-nn-dekf step (information) "
-        f"| {r['python_control_over_iapid']:.1f}x | — | — |",
-        f"| paper's 12 runs, one seed [s] | {rec['paper_runs_one_seed_s']:.3f} "
-        f"| <= {t['paper_runs_one_seed_s_max']:g} | {ok('paper_runs_one_seed')} |",
-        f"| 1,000 iapid-nn-dekf runs, {rec['workers']} workers [s] "
-        f"| {'—' if mc is None else f'{mc:.2f}'} "
-        f"| <= {t['monte_carlo_1000_s_max']:g} | {ok('monte_carlo_1000')} |",
-        f"| parallel rows == serial rows | {rec['parallel_equals_serial']} | true "
-        f"| {ok('parallel_equals_serial')} |",
-        *(f"| sweep runs/s, {s['workers']} workers / ({s['workers']} x serial), {e}, worst "
-          f"controller | {s[key]['efficiency']:.2f} | >= {t['sweep_efficiency_min']:g} "
-          f"| {ok('sweep_' + key + '_efficiency')} |"
-          for s in [rec.get("sweep")] if s
-          for key, e in (("local", "local cluster"), ("dask", "loopback scheduler"))),
-        *(f"| a sweep of {g['runs']:,} runs ({g['controller']}, {g['workers']} workers) "
-          f"| {g['seconds']:.0f} s, {g['runs_per_s']:.0f} runs/s | >= "
-          f"{t['large_sweep_runs_min']:,} runs complete | {ok('large_sweep')} |"
-          for g in [rec.get("sweep", {}).get("large_sweep")] if g),
-        *(f"| {name} step, plant with lag + delay + slip / ideal plant "
-          f"| {rec['plant'][name]['ratio']:.2f}x | <= {t['plant_ratio_max']:g}x "
-          f"| {ok('plant_overhead')} |" for name in ("backstepping", SUBJECT) if "plant" in rec),
-        *_targets_25(rec, ok),
-        *(f"| nmpc's step, median [ms] | {v['step_ms']['median']:.3f} "
-          f"| <= {t['nmpc_step_median_ms_max']:g} | {ok('nmpc_step_median')} |"
-          for v in [(rec.get("python_controllers") or {}).get("nmpc")] if v),
-        "",
-    ]  # fmt: skip
-
-
-def _targets_25(rec: dict, ok) -> list[str]:
-    """The issue 25 rows of the targets table (records that have the phases only)."""
-    if "phases" not in rec:
-        return []
-    r, t = rec["ratios"], TARGETS
-    return [*(f"| {name} CPU µs per step (issue 25) | {rec['cpu_us_per_step'][name]:.3f} "
-              f"| <= {limit:g} | {ok('us_per_step_' + name)} |"
-              for name, limit in t["us_per_step_max"].items() if name in rec["cpu_us_per_step"]),
-            f"| iapid-nn-dekf step / floor (issue 25) | {r['iapid_over_floor']:.2f}x "
-            f"| <= {t['iapid_floor_ratio_max']:g}x | {ok('iapid_floor_ratio_25')} |",
-            f"| set-up of one iapid-nn-dekf run [ms] | {rec['run_overhead_ms']:.3f} "
-            f"| <= {t['run_overhead_ms_max']:g} | {ok('run_overhead_25')} |"]  # fmt: skip
-
-
-def _costs_table(rec: dict) -> list[str]:
-    lines = ["| controller | µs/step (min) | µs/step (median) | CPU µs/step (min) | warm-up [s] |",
-             "|---|---:|---:|---:|---:|"]  # fmt: skip
-    for name, v in rec["us_per_step"].items():
-        cpu, warm = rec["cpu_us_per_step"][name], rec["warmup_s"][name]
-        med = rec["us_per_step_median"][name]
-        lines.append(f"| {name} | {v:.2f} | {med:.2f} | {cpu:.2f} | {warm:.2f} |")
-    return lines + [
-        f"| floor (n = {rec['n_weights']}) | {rec['floor_us_per_step']:.2f} "
-        f"| {rec['floor_us_per_step_median']:.2f} | {rec['floor_cpu_us_per_step']:.2f} | |",
-        f"| floor, m-generic | {rec['floor_generic_m_us_per_step']:.2f} | | | |",
-        f"| wmr.ekf.weight_update alone | {rec['weight_update_us_per_step']:.2f} | "
-        f"| {rec['weight_update_cpu_us_per_step']:.2f} | |", "",
-    ]  # fmt: skip
-
-
-def table(rec: dict) -> str:
-    """``tables/performance.md``: a title, the tables (:func:`tables`) and the notes."""
-    notes_md = [f"- {note}" for note in notes(rec)]
-    return "\n".join(["# Performance", "", tables(rec).rstrip(), "", *notes_md]) + "\n"
-
-
-def tables(rec: dict) -> str:
-    """The machine, targets, costs, python-control, sizes, workers and memory (the report's
-    section puts the notes above them, so they are not repeated here)."""
-    mach = rec["machine"]
-    lines = [
-        f"Machine: {mach['cpu_model']}, {mach['usable_cpus']} usable CPUs; numba {mach['numba']}; "
-        f"load average {mach['load_average_start'][0]:.2f}"
-        f" -> {mach['load_average_end'][0]:.2f}; quick = {rec['quick']}.", "",
-    ]  # fmt: skip
-    lines += _targets_table(rec) + _costs_table(rec) + _py_controller_bench.table_lines(rec)
-    if "phases" in rec:
-        lines += ["CPU µs per step, phase by phase (each phase alone on a real run's inputs; "
-                  "kernel = the whole run, set-up included; loop = kernel - sum):", "",
-                  *_phases.table(rec["phases"])]  # fmt: skip
-    if "run_overhead_ms_by_controller" in rec:
-        lines += ["Set-up of one run (a one-step run), CPU ms: " + ", ".join(
-            f"{k} {v:.3f}" for k, v in rec["run_overhead_ms_by_controller"].items()) + ".", ""]
-    if "against" in rec:
-        lines += _against.table(rec["against"])
-    lines += _bench.python_control_table(rec, SUBJECT)
-    lines += ["| hidden | n | loop µs/step | weight_update µs | floor µs | loop/floor |",
-              "|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
-    for v in rec["vs_weights"]:
-        lines.append(f"| {v['hidden']} | {v['n_weights']} | {v['us_per_step']:.2f} "
-                     f"| {v['weight_update_us_per_step']:.2f} | {v['floor_us_per_step']:.2f} "
-                     f"| {v['ratio']:.2f} |")  # fmt: skip
-    lines += ["", "| workers | runs | seconds | runs/s | speed-up |", "|---:|---:|---:|---:|---:|"]
-    for v in rec["vs_workers"]:
-        lines.append(f"| {v['workers']} | {v['runs']} | {v['seconds']:.2f} | {v['runs_per_s']:.1f} "
-                     f"| {v['speedup']:.2f} |")  # fmt: skip
-    lines += ["", f"Peak RSS {rec['peak_rss_mb']:.0f} MB (before the python-control runs "
-              f"{rec['peak_rss_mb_before_python_control']:.0f} MB; largest child "
-              f"{rec['peak_rss_children_mb']:.0f} MB).  A study row takes "
-              f"{rec['rows_bytes_per_run']:.0f} B pickled; a kept trajectory "
-              f"{rec['trajectory_mb_per_run']:.2f} MB per run.", ""]  # fmt: skip
-    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":
