@@ -50,6 +50,7 @@ import numpy as np
 from analysis import common
 from wmr import scenario as scn
 from wmr import stats
+from wmr.stats import clopper_pearson
 from wmr.study import Job, run_jobs
 
 __all__ = ["STEM", "TITLE", "CONTROLLERS", "RUNGS", "run", "check", "render", "table",
@@ -197,14 +198,6 @@ def sliding_point(friction: float, v: float, w: float, seconds: float = 6.0) -> 
             "slip_angle": float(a[0]), "slip_ratio": float(a[1]), "v_actual": float(a[2]),
             "w_actual": float(a[3]),
             "sliding": bool(a[0] > SLIDING or a[2] < SPEED_KEPT * v)}  # fmt: skip
-
-
-def clopper_pearson(k: int, n: int, level: float = 0.95) -> list[float]:
-    """The exact interval of a proportion ``k / n`` (scipy's ``binomtest``)."""
-    from scipy.stats import binomtest
-
-    ci = binomtest(k, n).proportion_ci(confidence_level=level, method="exact")
-    return [float(ci.low), float(ci.high)]
 
 
 def _fitted_plants(d: dict) -> dict:

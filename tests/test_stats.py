@@ -183,3 +183,27 @@ def test_bootstrap_is_deterministic_by_seed():
         st.bootstrap_mean_diff_ci(a, b, level=1.0)
     with pytest.raises(ValueError, match="finite pair"):
         st.bootstrap_mean_diff_ci([np.nan], [1.0])
+
+
+# --- Clopper-Pearson ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("n", [1, 5, 20, 137])
+def test_clopper_pearson_closed_forms_and_scipys_root_finding(n):
+    from scipy.stats import binomtest
+
+    assert st.clopper_pearson(0, n) == (0.0, pytest.approx(1 - 0.025 ** (1 / n), rel=1e-12))
+    assert st.clopper_pearson(n, n) == (pytest.approx(0.025 ** (1 / n), rel=1e-12), 1.0)
+    for k in range(n + 1):
+        ci = binomtest(k, n).proportion_ci(confidence_level=0.95, method="exact")
+        assert st.clopper_pearson(k, n) == pytest.approx((ci.low, ci.high), abs=1e-10)
+    lo, hi = st.clopper_pearson(n / 2, n, level=0.99)  # a wider level, a non-integer count
+    assert lo < 0.5 < hi and st.clopper_pearson(0, 0) == (0.0, 1.0)
+
+
+def test_clopper_pearson_covers_a_planted_proportion_at_least_nominally():
+    rng = np.random.default_rng(7)
+    p, n, reps = 0.1, 30, 2000
+    k = rng.binomial(n, p, size=reps)
+    covered = np.mean([lo <= p <= hi for lo, hi in (st.clopper_pearson(x, n) for x in k)])
+    assert covered >= 0.95  # exact intervals are conservative: >= nominal at every p
