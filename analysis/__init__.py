@@ -21,6 +21,7 @@ STUDIES: tuple[str, ...] = (
     "boundedness",
     "robots",
     "regimes",
+    "estimates",
     "calibration",
     "performance",
     "reliability",

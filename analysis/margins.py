@@ -36,7 +36,7 @@ import sys
 
 import numpy as np
 
-from analysis import _margins_nmpc, common
+from analysis import _margins_adaptive, _margins_nmpc, common
 from analysis._margins_figures import (
     along_runs_figure,
     printed_rotation_figure,
@@ -93,8 +93,8 @@ FLOQUET_SCENARIOS = ("lemniscate", "sinusoid")  # periodic (sinusoid-perturbed: 
 
 
 def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
-    """Compute the study (nmpc's rows: ``analysis._margins_nmpc``), write its record, table and
-    figures under ``out``; return the record (``workers``: the common signature; runs here)."""
+    """Compute the study (nmpc's, adaptive-bsc's rows: ``analysis._margins_nmpc``, ``_adaptive``),
+    write its record, table and figures under ``out``; return the record (``workers``: unused)."""
     every, n_grid = (QUICK_EVERY, QUICK_GRID) if quick else (EVERY, 81)
     scenarios = {name: scn.load(scn.builtin(name)) for name in scn.PAPER_SCENARIOS}
     op = operating_point(scenarios["sinusoid"], "mean")
@@ -121,6 +121,7 @@ def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
                          **{n: floquet.analyse(scenarios[n]) for n in FLOQUET_SCENARIOS}}
     record["cross_checks"] = cc
     record["nmpc"] = _margins_nmpc.margins(ops)
+    record["adaptive_bsc"] = _margins_adaptive.margins(ops)
     record["figures"] = [
         common.save_figure(out, "margins_stability_region.png", stability_region_figure(regions)),
         common.save_figure(out, "margins_along_runs.png", along_runs_figure(along)),
@@ -395,8 +396,7 @@ def check(record: dict) -> None:
                 "printed_at_heading_0_equals_corrected_max_abs"):  # fmt: skip
         assert cc[key] < 1e-12, (key, cc[key])
     # eig(A_d) - exp(eig(A) dt) is O(dt^2): halving dt divides it by ~4.
-    assert 3.0 < cc["bsc_discrete_vs_exp_continuous"]["ratio"] < 5.0, cc[
-        "bsc_discrete_vs_exp_continuous"]  # fmt: skip
+    assert 3.0 < (r := cc["bsc_discrete_vs_exp_continuous"])["ratio"] < 5.0, r
     for name in ("pid", "backstepping"):
         for ch in CHANNELS:
             c = cc[f"{name}_{ch}_eigen_vs_frequency"]
@@ -416,6 +416,7 @@ def check(record: dict) -> None:
             assert d["diverged_at"] is None and d["tail_over_initial"] < 1.0, d
         else:
             assert d["diverged_at"] is not None or d["peak_over_initial"] > 10.0, d
+    _margins_adaptive.check(record)  # frozen adaptive-bsc: BSC's margins once adapted
     fq = record.get("floquet", {})  # records older than issue 14 have none
     for name in floquet.CONTROLLERS if fq else ():  # Phi = A^N up to round-off (N products)
         c = fq["circle_closed_form"][name]
@@ -509,7 +510,7 @@ def table(record: dict) -> str:
                                                             strict=True)))
                                   for name, label in (("pid", "PID (eq. 7, fixed)"),
                                                       ("backstepping", "BSC"))])  # fmt: skip
-    lines += _margins_nmpc.table_lines(record)  # records older than issue 21 have none
+    lines += _margins_nmpc.table_lines(record) + _margins_adaptive.table_lines(record)  # issue 21
     fq = record.get("floquet")  # records older than issue 14 have none
     return "\n".join(lines + (_floquet_table(fq) if fq else [])) + "\n"
 
