@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from analysis import _calibration_fit as fitmod
 from analysis import _calibration_methods as methods
 from analysis import _calibration_prior as prior
 from analysis._calibration_fair import Budget
@@ -65,16 +66,30 @@ class Level:
     base: Mapping[str, object] = field(default_factory=dict)  # default overrides
     screen_fraction: float = 0.1
     pawn_resamples: int = 100
+    #: the seeds at which the verdict judges its candidates (K of them, like ``rule_seeds``):
+    #: disjoint from ``seeds``, on which the candidates were selected (the design's ranking and
+    #: the fit's objective), so their judgement is not the selection's own noise
+    verdict_seeds: tuple[int, ...] = ()
+
+    def __post_init__(self):
+        if len(self.verdict_seeds) != len(self.rule_seeds):
+            raise ValueError(f"level {self.name}: {len(self.verdict_seeds)} verdict seeds, "
+                             f"{len(self.rule_seeds)} rule seeds (the rule's K must be one)")
+        if set(self.verdict_seeds) & set(self.seeds):
+            raise ValueError(f"level {self.name}: verdict seeds {self.verdict_seeds} share "
+                             f"seeds with the selection's {self.seeds}")
 
 
 FULL = Level("full", (0, 1), morris_r=20, design_m=11, rule_seeds=tuple(range(10)),
              n_truths=100, verdict_top=20, cma_restarts=6, cma_popsize=12, cma_maxfevals=240,
              fair=Budget(population=24, generations=15, seeds=(0, 1),
-                         test_seeds=tuple(range(100, 110)), front_points=6))  # fmt: skip
+                         test_seeds=tuple(range(100, 110)), front_points=6),
+             verdict_seeds=tuple(range(2, 12)))  # fmt: skip
 MEDIUM = Level("medium", (0, 1), morris_r=8, design_m=7, rule_seeds=tuple(range(10)),
                n_truths=20, verdict_top=5, cma_restarts=5, cma_popsize=8, cma_maxfevals=32,
                fair=Budget(population=12, generations=5, seeds=(0,),
-                           test_seeds=tuple(range(100, 105)), front_points=3))  # fmt: skip
+                           test_seeds=tuple(range(100, 105)), front_points=3),
+               verdict_seeds=tuple(range(2, 12)))  # fmt: skip
 QUICK = Level("quick", (0,), morris_r=2, design_m=3, rule_seeds=(0, 1, 2), n_truths=3,
               verdict_top=2, cma_restarts=2, cma_popsize=4, cma_maxfevals=4,
               fair=Budget(population=6, generations=1, seeds=(0,), test_seeds=(100,),
@@ -82,7 +97,7 @@ QUICK = Level("quick", (0,), morris_r=2, design_m=3, rule_seeds=(0, 1, 2), n_tru
               factors={"duration": Factor("duration", levels=(21.0,)),
                        "dt": Factor("dt", levels=(0.05,))},
               base={"duration": 21.0, "dt": 0.05}, screen_fraction=0.3,
-              pawn_resamples=10)  # fmt: skip
+              pawn_resamples=10, verdict_seeds=(1, 2, 3))  # fmt: skip
 LEVELS = {lv.name: lv for lv in (QUICK, MEDIUM, FULL)}
 
 
@@ -202,8 +217,9 @@ def design(ev, level: Level, space: Space) -> dict:
     status = np.stack([a[..., -1] for a in res])
     feas = _summary(nums, np.stack([diverged(a) for a in res]))
     disc = prior.discrepancy(feas["mean"])
+    obj = np.array([fitmod.objective(x) for x in nums])  # the fit's: selects its candidates
     return {"u": U, "A": A, "B": B, "results": res, "nums": nums, "status": status, **feas,
-            **disc}  # fmt: skip
+            **disc, "objective": obj}  # fmt: skip
 
 
 def coverage(des: dict) -> dict:

@@ -516,17 +516,21 @@ def test_quick_study_is_whole_and_checks(quick):
 
 
 def test_quick_planted_truths_at_fixed_seeds(quick):
-    """The quick level's planted truths (fixed generator and seeds): every truth accepted at
-    its own setting (3 of 3) at the verdict's discrepancy; at zero discrepancy every point at
-    distance 0.3 is ruled out, at the verdict's 10 % none is (the rule is then too loose, and
-    the record says so); the headline is the verdict's discrepancy."""
+    """The quick level's planted truths (drawn from the prior by a fixed generator, their
+    paper runs at fixed seeds): every truth accepted at its own setting (3 of 3) at the
+    verdict's discrepancy and threshold; every point at distance 0.3 is ruled out at 10 % by
+    the default threshold, none by the earlier t threshold (too loose: the audit's finding 4);
+    the headline is the verdict's discrepancy and the default threshold."""
     _, record = quick
     pl = record["planted"]
-    assert pl["delta"] == 0.1
+    assert pl["delta"] == 0.1 and pl["threshold_rule"] == "welch"
     assert pl["coverage"]["k"] == pl["n_truths"] == 3
     assert pl["by_delta"]["0"]["power"]["0.3"]["k"] == 3
-    assert pl["by_delta"]["0.1"]["power"]["0.3"]["k"] == pl["power"]["0.3"]["k"] == 0
-    assert pl["too_loose"] and not pl["by_delta"]["0"]["too_loose"]
+    assert pl["by_delta"]["0.1"]["power"]["0.3"]["k"] == pl["power"]["0.3"]["k"] == 3
+    old = pl["by_delta_earlier_threshold"]
+    assert old["threshold"] == pytest.approx(26.4735, abs=1e-4)  # t, 2 d.o.f. (K = 3), Sidak
+    assert old["0.1"]["power"]["0.3"]["k"] == 0 and old["0.1"]["too_loose"]
+    assert not pl["too_loose"]
     assert pl["coverage"]["ci_low"] > 0 and pl["coverage"]["ci_high"] == 1.0
 
 
@@ -594,3 +598,56 @@ def test_committed_fit_scenarios_reproduce_the_record():
                 r = simulate(sc, c, seed, keep_trajectory=False)
                 ours += [r.rmse[a] if not r.diverged else prior.DIVERGED_RMSE for a in prior.AXES]
         assert ours == pytest.approx(fit["per_seed"][i_seed], rel=1e-12), seed
+
+
+# ---------------------------------------------------------------------------------------------
+# The audit's findings 3 and 7: continuous-only power, disjoint seeds
+
+
+def test_selection_and_rule_seeds_are_disjoint(quick):
+    """Every level judges its verdict's candidates at K seeds none of which selected them (the
+    design's and the fit's seeds); planted truths' paper runs never share the rule's seeds; a
+    level or a fit that would share them is refused; the quick record says which it used."""
+    from analysis import _calibration_fit as fitmod
+    from analysis import _calibration_rule as rule
+    from analysis import _calibration_stages as stages
+
+    for lv in stages.LEVELS.values():
+        assert not set(lv.verdict_seeds) & set(lv.seeds), lv.name
+        assert len(lv.verdict_seeds) == len(lv.rule_seeds), lv.name
+        truth = set(range(rule.TRUTH_SEED0, rule.TRUTH_SEED0 + lv.n_truths))
+        assert not truth & set(lv.rule_seeds), lv.name
+    with pytest.raises(ValueError, match="share"):
+        dataclasses.replace(stages.QUICK, verdict_seeds=(0, 1, 2))
+    with pytest.raises(ValueError, match="share"):
+        fitmod.cmaes_fit(None, None, {}, (0, 1), (1, 2), 2, 4, 4)
+    _, record = quick
+    ver = record["verdict"]
+    assert not set(ver["seeds"]) & set(ver["selection_seeds"])
+    assert ver["selection_seeds"] == record["seeds"]
+    assert record["best_fit"]["seeds"] == ver["seeds"]
+
+
+def test_power_over_continuous_moves_counts_the_moves_that_keep_discrete_levels(quick):
+    """The record's continuous-only power is over the moves whose discrete settings kept the
+    truth's level (rebuilt here from the truths and the generator) and counts its ruled-out
+    points from the record's max implausibilities."""
+    from analysis import _calibration_rule as rule
+
+    _, record = quick
+    pl = record["planted"]
+    _, space = _space(record)
+    rng = np.random.default_rng(pl["generator_seed"])
+    truths = rng.random((pl["n_truths"], len(space.names)))
+    assert truths.tolist() == pl["truths_u"]
+    for t, u in enumerate(truths):
+        for j, d in enumerate(rule.DISTANCES):
+            v, _ = rule._away(rng, u, d)
+            a, b = space.values(u), space.values(v)
+            same = all(a[n] == b[n] for n in space.names if space.factors[n].levels is not None)
+            assert pl["discrete_kept"][t][j] == same, (t, d)
+    for j, d in enumerate(rule.DISTANCES):
+        cont = pl["power_continuous_only"][f"{d:g}"]
+        sel = [t for t in range(pl["n_truths"]) if pl["discrete_kept"][t][j]]
+        assert cont["n"] == len(sel)
+        assert cont["k"] == sum(pl["max_implausibility_away"][t][j] > pl["threshold"] for t in sel)
