@@ -56,6 +56,7 @@ import numpy as np
 from scipy import stats
 
 from analysis import _calibration_prior as prior
+from wmr.stats import clopper_pearson
 
 __all__ = ["LEVEL", "DISTANCES", "TRUTH_SEED0", "PLANT_SEED", "DELTAS", "DELTA", "RULES",
            "RULE", "DIVERGENCE_RULE", "threshold", "per_number_threshold", "effective_dof",
@@ -182,17 +183,6 @@ CAP = 1e6
 def capped(i: np.ndarray) -> np.ndarray:
     """Implausibilities with ``inf`` written as :data:`CAP` (JSON has no infinity)."""
     return np.minimum(np.asarray(i, dtype=float), CAP)
-
-
-def clopper_pearson(k: float, n: float, level: float = 0.95) -> tuple[float, float]:
-    """The exact (Clopper-Pearson) interval of a proportion ``k / n``; ``[0, upper]`` for
-    ``k = 0``.  A non-integer ``k`` (an effective count, Korn & Graubard 1998) is allowed."""
-    if n <= 0:
-        return 0.0, 1.0
-    a = 1.0 - level
-    lo = 0.0 if k <= 0 else float(stats.beta.ppf(a / 2, k, n - k + 1))
-    hi = 1.0 if k >= n else float(stats.beta.ppf(1 - a / 2, k + 1, n - k))
-    return lo, hi
 
 
 def proportion(k: float, n: float, level: float = 0.95) -> dict:
