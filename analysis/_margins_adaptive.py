@@ -94,13 +94,9 @@ def policy(op: OperatingPoint, estimates, settings=None):
 
 def policy_gain(op: OperatingPoint, estimates, h: float = FD_STEP) -> np.ndarray:
     """``d kappa / d e`` (2, 3) at ``e = 0`` by central differences of step ``h``."""
-    kappa = policy(op, estimates)
-    D = np.zeros((2, 3))
-    for j in range(3):
-        d = np.zeros(3)
-        d[j] = h
-        D[:, j] = (kappa(d) - kappa(-d)) / (2 * h)
-    return D
+    from analysis._margins_nmpc import error_jacobian
+
+    return error_jacobian(policy(op, estimates), h)
 
 
 def margins(ops) -> dict:
@@ -162,15 +158,11 @@ def table_lines(record: dict) -> list[str]:
     """The margins table's adaptive-bsc block (empty when the record has no ``"adaptive_bsc"``
     entry), beside BSC's margins at the same operating point."""
     from analysis import common
+    from analysis._margins_nmpc import margin_cell
 
     rec = record.get("adaptive_bsc")
     if not rec:
         return []
-
-    def cell(m):
-        return " / ".join(common.fmt(m[k], d) if not isinstance(m[k], str) else m[k]
-                          for k, d in (("gain_margin_db", 1), ("phase_margin_deg", 1),
-                                       ("disk_margin", 3)))  # fmt: skip
 
     rows = []
     for plant, e in rec.items():
@@ -178,8 +170,9 @@ def table_lines(record: dict) -> list[str]:
                                                              "w_from_v"))  # fmt: skip
         for label, r in e["points"].items():
             bsc = record["operating_points"][label]["backstepping"]
-            rows.append((plant, est, label, cell(r["v"]), cell(r["w"]), cell(bsc["v"]),
-                         cell(bsc["w"]), f"{r['spectral_radius']:.5f}"))  # fmt: skip
+            rows.append((plant, est, label, margin_cell(r["v"]), margin_cell(r["w"]),
+                         margin_cell(bsc["v"]), margin_cell(bsc["w"]),
+                         f"{r['spectral_radius']:.5f}"))  # fmt: skip
     gm, pm = _largest_gap(record)
     summary = (f"Once adapted it keeps BSC's margins: on every plant and operating point within "
                f"{gm:.3f} dB of gain and {pm:.3f}° of phase margin.")

@@ -74,7 +74,12 @@ def policy(op: OperatingPoint, settings=None):
 
 def policy_gain(op: OperatingPoint, settings=None, h: float = FD_STEP) -> np.ndarray:
     """``D = d kappa / d e`` (2, 3) at ``e = 0`` by central differences of step ``h``."""
-    kappa = policy(op, settings)
+    return error_jacobian(policy(op, settings), h)
+
+
+def error_jacobian(kappa, h: float = FD_STEP) -> np.ndarray:
+    """``d kappa / d e`` (2, 3) at ``e = 0`` of a policy ``kappa: e (3,) -> u (2,)`` by central
+    differences of step ``h`` (the one finite-difference linearisation of a policy here)."""
     D = np.zeros((2, 3))
     for j in range(3):
         d = np.zeros(3)
@@ -108,6 +113,16 @@ def margins(ops, settings=None) -> dict:
     return out
 
 
+def margin_cell(m: dict) -> str:
+    """One loop's margins as a table cell: upper gain margin [dB] / phase margin [deg] / disk
+    margin alpha (a text entry, e.g. "inf", as it is)."""
+    from analysis import common
+
+    return " / ".join(common.fmt(m[k], d) if not isinstance(m[k], str) else m[k]
+                      for k, d in (("gain_margin_db", 1), ("phase_margin_deg", 1),
+                                   ("disk_margin", 3)))  # fmt: skip
+
+
 def table_lines(record: dict) -> list[str]:
     """The margins table's NMPC block (empty when the record has no ``"nmpc"`` entry)."""
     from analysis import common
@@ -116,12 +131,7 @@ def table_lines(record: dict) -> list[str]:
     if not rec:
         return []
 
-    def cell(m):
-        return " / ".join(common.fmt(m[k], d) if not isinstance(m[k], str) else m[k]
-                          for k, d in (("gain_margin_db", 1), ("phase_margin_deg", 1),
-                                       ("disk_margin", 3)))  # fmt: skip
-
-    rows = [(label, f"{r['v_r']:.3f}", f"{r['w_r']:.3f}", cell(r["v"]), cell(r["w"]),
+    rows = [(label, f"{r['v_r']:.3f}", f"{r['w_r']:.3f}", margin_cell(r["v"]), margin_cell(r["w"]),
              f"{r['spectral_radius']:.5f}",
              "; ".join(", ".join(f"{x:.3f}" for x in row) for row in r["gain"]))
             for label, r in rec.items()]  # fmt: skip

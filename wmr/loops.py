@@ -457,24 +457,11 @@ def _sym():
     return symbolic
 
 
-#: Names that live in :mod:`wmr.loop_regions` (closed forms, regions, sweeps), still reachable here.
-_MOVED = frozenset((
-    "jury_v_loop_stable",
-    "jury_v_gain_limits",
-    "routh_w_loop_stable",
-    "first_crossing",
-    "stability_region",
-    "stable_gain_interval",
-    "max_stable_delay",
-    "printed_rotation_sweep",
-    "unstable_intervals",
-))
-
-
 def __getattr__(name: str):
-    if name in _MOVED:
-        from wmr import loop_regions
+    # the closed forms, regions and sweeps moved to wmr.loop_regions: still reachable here
+    from wmr import loop_regions
 
+    if name in loop_regions.__all__:
         return getattr(loop_regions, name)
     raise AttributeError(f"module 'wmr.loops' has no attribute {name!r}")
 
