@@ -35,7 +35,7 @@ from analysis import common, tuning
 from wmr import sweep
 
 __all__ = ["STEM", "TITLE", "ARMS", "LEVELS", "CONTRASTS", "run", "check", "render", "table",
-           "analyse"]  # fmt: skip
+           "analyse", "rederive", "StaleStore"]  # fmt: skip
 
 STEM = "regimes"
 TITLE = "When does adaptation pay? A matched design with equal tuning"
@@ -263,6 +263,18 @@ def compute(out, level: str, workers: int | None = None) -> dict:
             manifests.append(sweep.run_sweep(sweep.load_spec(p), store / p.stem, progress=None,
                                              stale="set-aside", eng=eng))  # fmt: skip
     seconds = time.perf_counter() - t0
+    cost = {"runs": int(sum(m["jobs"] for m in manifests)),
+            "runs_this_time": int(sum(m["runs_this_time"] for m in manifests)),
+            "run_seconds_total": float(sum(m["run_seconds_total"] for m in manifests)),
+            "seconds": seconds, "tuning_seconds": t_tune,
+            "engine": manifests[0]["engine"], "workers": manifests[0]["workers"]}  # fmt: skip
+    return _assemble(out, level, d, done, store, tuned, known, cost)
+
+
+def _assemble(out, level: str, d: dict, done, store: Path, tuned: dict, known: dict | None,
+              cost: dict) -> dict:  # fmt: skip
+    """The record from the stores of ``done`` (analyse, recovery, the known-PID contrast, the
+    arms' settings), written with its table and figure."""
     rows = _frame(done, store)
     record = analyse(rows, tuned)
     record["recovery"] = _recovery(done, store, tuned)
@@ -282,18 +294,51 @@ def compute(out, level: str, workers: int | None = None) -> dict:
                                      "optimiser": "CMA-ES (cma), default population, seeds 0 "
                                                   "and 1, restart 0 from the defaults"},
                           "arms": tuned},
-                  cost={"runs": int(sum(m["jobs"] for m in manifests)),
-                        "runs_this_time": int(sum(m["runs_this_time"] for m in manifests)),
-                        "run_seconds_total": float(sum(m["run_seconds_total"]
-                                                       for m in manifests)),
-                        "seconds": seconds, "tuning_seconds": t_tune,
-                        "engine": manifests[0]["engine"], "workers": manifests[0]["workers"]})
+                  cost=cost)
     record["verdict"] = report.verdicts(record)
     record["figures"] = [common.save_figure(out, f"{STEM}_contrasts.png",
                                             report.figure(record))]  # fmt: skip
     common.write_record(out, STEM, record)
     common.write_table(out, STEM, table(record))
     return record
+
+
+class StaleStore(RuntimeError):
+    """A store of the record does not hold the runs of its spec (re-deriving would rerun)."""
+
+
+def rederive(out, level: str = "record", base: Path | None = None) -> dict:
+    """The record at ``level`` re-derived from its stores without running anything: the tuned
+    settings and the cost are read from the record in ``base`` (default: the committed one),
+    the specs rebuilt from them must be the stores' own (the same text, spec digest and code
+    digest, every job's row present), else :class:`StaleStore`; then the analysis of
+    :func:`compute` on the stored rows."""
+    from wmr.engine.sweeps import code_digest, finished_jobs
+
+    old = common.load_record(base or COMMITTED, STEM)
+    if not old or old.get("level") != level:
+        raise StaleStore(f"no {level} record in {base or COMMITTED}")
+    d, store = LEVELS[level], _store(Path(out), level)
+    tuned, known = old["tuning"]["arms"], (old.get("known_pid") or {}).get("tuning")
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        fresh = _specs(d, tuned, Path(tmp), known)
+        done = []
+        for lv, pose, p in fresh:
+            for f in [p, *Path(tmp).glob("*@*.toml")]:
+                kept = store / "specs" / f.name
+                if not kept.exists() or kept.read_text() != f.read_text():
+                    raise StaleStore(f"{kept}: not the spec this record's settings give")
+            done.append((lv, pose, store / "specs" / p.name))
+    for _, _, p in done:
+        spec = sweep.load_spec(p)
+        man = json.loads((store / p.stem / "manifest.json").read_text())
+        if man["spec_digest"] != spec.digest or man["code_digest"] != code_digest():
+            raise StaleStore(f"{store / p.stem}: its digests are not this code's and spec's")
+        if len(finished_jobs(store / p.stem)) != spec.n_jobs:
+            raise StaleStore(f"{store / p.stem}: runs missing")
+    return _assemble(out, level, d, done, store, tuned, known, old["cost"])
 
 
 def _known(rows, tuned: dict, known: dict) -> dict:
@@ -455,8 +500,10 @@ def render(record: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m analysis.regimes [--out DIR] [--level quick|record|full] [--workers N]``:
-    compute the study at that level (``make regimes``: full), check it, say where it went."""
+    """``python -m analysis.regimes [--out DIR] [--level quick|record|full] [--workers N]
+    [--rederive]``: compute the study at that level (``make regimes``: full), or with
+    ``--rederive`` re-derive the committed record's level from its stores without running
+    (:func:`rederive`; exit 1 if a store is stale), check it, say where it went."""
     import argparse
 
     import matplotlib
@@ -466,9 +513,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default="paper")
     parser.add_argument("--level", choices=list(LEVELS), default="record")
     parser.add_argument("--workers", type=int, default=None)
+    parser.add_argument("--rederive", action="store_true",
+                        help="re-derive the record from its stores; never run")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
-    record = compute(args.out, args.level, args.workers)
+    if args.rederive:
+        try:
+            record = rederive(args.out, args.level)
+        except StaleStore as err:
+            print(f"{STEM}: not re-derived: {err}", file=sys.stderr)
+            return 1
+    else:
+        record = compute(args.out, args.level, args.workers)
     try:
         check(record)
     except AssertionError as err:
