@@ -401,6 +401,23 @@ def _join(x, y):
     return x[cols].add_suffix("_a").join(y[cols].add_suffix("_b"), how="inner").reset_index()
 
 
+def _stable(p):
+    """The both-stable pairs of ``p`` (:func:`_join`'s columns) with their ``delta`` = log r_a -
+    log r_b: the model's frame."""
+    ok = p[~p.failed_a & ~p.failed_b & (p.tail_position_a > 0) & (p.tail_position_b > 0)].copy()
+    ok["delta"] = np.log(ok.tail_position_a) - np.log(ok.tail_position_b)
+    return ok
+
+
+def model_frame(rows, tuned: dict, contrast: tuple[str, str], level: str):
+    """The model's frame of ``contrast`` (a, b) at ``level`` ("tuned", "default"): the
+    both-stable pairs of every pose source with ``delta``."""
+    best = {pose: {"best-adaptive": _best(tuned, pose, ADAPTIVE),
+                   "best-fixed": _best(tuned, pose, FIXED)} for pose in POSES}
+    p = _pairs_of(rows, *contrast, best)
+    return _stable(p[p.level == level])
+
+
 def _endpoints(p, mechs, trajs) -> dict:
     """Per mechanism: paired divergence (McNemar over its trajectories and seeds) and the RMSE
     on both-stable pairs per trajectory."""
@@ -440,9 +457,7 @@ def analyse(rows, tuned: dict) -> dict:
             pl = p[p.level == lv]
             contrasts[name][lv] = {pose: _endpoints(pl[pl.pose == pose], mechs, trajs)
                                    for pose in POSES}  # fmt: skip
-            ok = pl[~pl.failed_a & ~pl.failed_b & (pl.tail_position_a > 0)
-                    & (pl.tail_position_b > 0)].copy()  # fmt: skip
-            ok["delta"] = np.log(ok.tail_position_a) - np.log(ok.tail_position_b)
+            ok = _stable(pl)
             contrasts[name][lv]["model"] = rstats.contrast_model(ok) if len(ok) > 2 else None
     pp = _paper_pairs(rows)
     paper = {"label": "the paper's asymmetric arm: IAPID-NN-DEKF on the filtered pose vs APID on "
