@@ -252,6 +252,26 @@ def test_quick_run_is_whole_consistent_and_renders(quick):
             assert (x["diverged"], x["n"]) == (k, len(g)), (m, c)
 
 
+def test_the_record_is_rederived_from_its_stores_and_a_stale_one_refused(quick):
+    """``rederive`` reads the stores only: the same record (but for its cost's flag), and a
+    store whose spec is not the one the record's settings give is refused, not rerun (in the
+    quick study's folder: a store's digest names its files' paths; the files are restored)."""
+    record, out = quick
+    path = out / "results" / "regimes.json"
+    spec = out / ".regimes-store" / "specs" / "tuned-raw.toml"
+    kept, text = path.read_bytes(), spec.read_text()
+    try:
+        again = regimes.rederive(out, "quick", base=out)
+        assert again["cost"].pop("rederived") is True
+        assert json.loads(json.dumps(again)) == json.loads(json.dumps(record))
+        spec.write_text(text.replace("seeds = 3", "seeds = 4"))
+        with pytest.raises(regimes.StaleStore, match="tuned-raw"):
+            regimes.rederive(out, "quick", base=out)
+    finally:
+        path.write_bytes(kept)
+        spec.write_text(text)
+
+
 def _rerun(record: dict, level: str, pose: str, mech: str, traj: str, arms) -> dict:
     """The runs of ``arms`` on (mechanism, trajectory) at ``level``/``pose`` from their scenario
     text and the record's settings, through the engine's run-to-row mapping."""
