@@ -140,9 +140,9 @@ def _lbl(c: str) -> str:
 def notes(record: dict) -> str:
     """The section's text, all from the record: the answer first, in short sentences (DESIGN
     §7.8), then the details, their numbers in tables (Markdown; ``analysis.prose``'s rule)."""
-    blocks = [*_answer(record), _reading(), _defaults(record), *_per_pose(record),
-              _interactions(record), _tuning(record), _extra(record), _recovery(record),
-              _cost(record)]  # fmt: skip
+    blocks = [*_answer(record), _reading(), _defaults(record), _coverage(record),
+              _tracking(record), *_per_pose(record), _interactions(record), _tuning(record),
+              _extra(record), _recovery(record), _cost(record)]  # fmt: skip
     return "\n\n".join(b for b in blocks if b)
 
 
@@ -201,7 +201,8 @@ def _answer(record: dict) -> list[str]:
 
 def _reading() -> str:
     return ("**How to read the ratios.** A ratio is exp of the model's contrast: log RMSE after "
-            "the transient on the both-stable pairs, clustered by seed. The trajectories are "
+            "the transient on the both-stable pairs, clustered by seed (Student t at G - 1 df, G "
+            "seeds). The trajectories are "
             "fixed effects, so an interval is over seeds on these trajectories. A ratio is "
             "averaged over the pose sources, then given per pose source; n is the count of "
             "both-stable pairs.")
@@ -219,15 +220,88 @@ def _defaults(record: dict) -> str:
     v = record["verdict"]["mechanisms"]
     rows = [[m, _ci(e), v.get(m, {}).get(IA, {}).get("default", {}).get("verdict", "—")]
             for m, e in dm["mechanisms"].items()]  # fmt: skip
+    cov = _span(record, IA, "t(G-1)")
     caveat = (f"The model has {dm['clusters']} seeds as clusters"
-              + (", too few for a cluster-robust interval to be trusted." if dm["clusters"] < 10
-                 else ".")
+              + (f"; its interval (Student t at {dm['clusters'] - 1} df) covers planted ratios "
+                 f"{cov} of the time at this layout (below)." if cov else
+                 (", too few for a cluster-robust interval to be trusted." if dm["clusters"] < 10
+                  else "."))
               + " The fit's warnings: "
               + ("; ".join(dict.fromkeys(dm["warnings"])) or "none") + ".")  # fmt: skip
     return "\n".join([
         "**At the defaults** (the same settings for IAPID and APID), IAPID - APID, ratio of "
         "both-stable RMSE with its 95 % interval:", "",
         *common.md_table(["mechanism", "ratio [95 % interval]", "verdict"], rows), "", caveat])
+
+
+def _span(record: dict, name: str, interval: str, key: str = "coverage_cells") -> str:
+    """The range of the planted-truth coverage of ``name``'s ``interval`` over the ratios."""
+    c = record.get("coverage", {}).get("contrasts", {}).get(name, {}).get("intervals", {})
+    if interval not in c:
+        return ""
+    v = [100 * x[key] for x in c[interval].values()]
+    return f"{min(v):.0f}-{max(v):.0f} %"
+
+
+def _coverage(record: dict) -> str:
+    """The rule on planted truth (``analysis._regimes_coverage``): a sentence and a table."""
+    cov = record.get("coverage")
+    if not cov:
+        return ""
+    c0 = next(iter(cov["contrasts"].values()))
+    rows = []
+    for name, c in cov["contrasts"].items():
+        for interval, by in c["intervals"].items():
+            for ratio, x in by.items():
+                v = x["verdicts"]
+                rows.append([name, interval, ratio, f"{100 * x['coverage_cells']:.1f} %",
+                             f"{100 * x['coverage_mechanisms']:.1f} %",
+                             *[f"{100 * v[w]:.0f} %" for w in ("pays", "costs",
+                                                               "same within 5 %", "undecided")],
+                             f"{100 * x['correct']:.0f} %"])  # fmt: skip
+    ba = cov["contrasts"].get(KEY, {}).get("intervals", {}).get("t(G-1)", {})
+    power = (f" With {KEY}'s noise the planted verdict comes out in "
+             + ", ".join(f"{100 * x['correct']:.0f} % at {r}" for r, x in ba.items())
+             + " of mechanisms." if ba else "")  # fmt: skip
+    return "\n".join([
+        f"**The rule on planted truth.** Synthetic pairs with the defaults' layout "
+        f"({c0['clusters']} seeds as clusters, {c0['pairs']} both-stable pairs) and the "
+        f"record's noise per mechanism, {c0['replicates']} replicates per planted ratio. "
+        f"The normal interval covers the planted ratio {_span(record, IA, 'normal')} of the "
+        f"time; Student t at G - 1 df covers {_span(record, IA, 't(G-1)')}, and the rule uses "
+        f"it.{power} The noise is Gaussian: a seed effect per mechanism and a pair's own noise, "
+        "at the record's residual levels.", "",
+        *common.md_table(["contrast", "interval", "planted", "covered (cells)",
+                          "covered (mechanisms)", "pays", "costs", "same", "undecided",
+                          "right verdict"], rows)])  # fmt: skip
+
+
+def _tracking(record: dict) -> str:
+    """The second endpoint: tracking failure against divergence (tuned settings)."""
+    tr = record.get("tracking")
+    if not tr:
+        return ""
+    tot = {}
+    for what, src in (("track", tr["counts"]["tuned"]), ("div", record["divergence"]["tuned"])):
+        for by in src.values():
+            for arms in by.values():
+                for c, x in arms.items():
+                    k = tot.setdefault(c, {"track": 0, "div": 0, "n": 0})
+                    k[what] += x["diverged"]
+                    k["n"] += x["n"] if what == "div" else 0
+    ch = tr["verdict_changes"]
+    said = "; ".join(f"{x['contrast']} on {x['mechanism']} ({x['setting']}): "
+                     f"{x['both_stable']} -> {x['both_tracking']}" for x in ch)
+    return (f"**Tracking failure.** A run fails to track when it diverges or its RMSE after the "
+            f"transient is above {tr['threshold_m']:g} m: {tr['reason']}. "
+            "At the tuned settings, failed to track / diverged: "
+            + ", ".join(f"{_lbl(c)} {t['track']} / {t['div']} of {t['n']}"
+                        for c, t in tot.items()) + ". "
+            + ("Comparing on both-tracking instead of both-stable pairs changes no verdict."
+               if not ch else f"Comparing on both-tracking pairs changes {len(ch)} verdicts: "
+               + said + ".")
+            + " The counts per mechanism and pose, with Clopper-Pearson intervals, are in the "
+              "tracking table below.")
 
 
 def _per_pose(record: dict) -> list[str]:
@@ -256,8 +330,19 @@ def _interactions(record: dict) -> str:
         return "Interaction tests: too few cells."
     return (f"Interactions of IAPID - APID: pose source p = {tests['pose_source']['p']:.3g}, "
             + (f"trajectory p = {tests['trajectory']['p']:.3g}, " if tests["trajectory"] else "")
-            + f"mechanism p = {tests['mechanism']['p']:.3g} (cluster-robust Wald tests, "
-            f"{model['clusters']} clusters; the fit's warnings: {len(model['warnings'])}).")
+            + f"mechanism p = {tests['mechanism']['p']:.3g} (cluster-robust Wald F tests over the "
+            f"simulated plants, {model['clusters']} clusters; the fit's warnings: "
+            f"{len(model['warnings'])})." + _apart(tests.get("apart")))
+
+
+def _apart(t: dict | None) -> str:
+    """The MuJoCo cells' own interaction tests (not pooled with the simulated plants)."""
+    if not t:
+        return ""
+    said = [f"{k.replace('_', ' ')} p = {t[k]['p']:.3g}" for k in ("pose_source", "mechanism")
+            if t[k]]  # fmt: skip
+    return (f" The MuJoCo cells ({', '.join(t['mechanisms'])}; 3 seeds, withheld) are tested "
+            f"apart: {', '.join(said) or 'too few cells'}.")
 
 
 def _tuning(record: dict) -> str:
@@ -277,8 +362,8 @@ def _tuning(record: dict) -> str:
 
 
 def _extra(record: dict) -> str:
-    """Two more contrasts per mechanism: the labelled upper bound (best adaptive against the
-    fixed PID tuned per mechanism) and the paper's asymmetric arm."""
+    """Two more contrasts per mechanism: the best adaptive arm against the PID tuned on the test
+    mechanism (same budget) and the paper's asymmetric arm."""
     k = record.get("known_pid")
     known = {}
     if k and k["model"]:
@@ -295,11 +380,12 @@ def _extra(record: dict) -> str:
     mechs = [m for m in record["mechanisms"] if m in known or m in paper]
     if not mechs:
         return ""
-    lead = [f"**Upper bound and the paper's arm.** Column 'upper bound': {k['label']}, as the "
-            "ratio of both-stable RMSE."] if known else ["**The paper's arm.**"]
+    lead = [f"**PID tuned on the test mechanism, and the paper's arm.** Column 'vs PID tuned on "
+            f"the mechanism': {k['label']}, as the ratio of both-stable RMSE."] if known else [
+            "**The paper's arm.**"]  # fmt: skip
     lead.append(f"Column 'paper's arm': {record['paper_arm']['label']}, as the median relative "
                 "difference of the both-stable means over trajectories.")
-    header = ["mechanism", *(["upper bound"] if known else []), "paper's arm"]
+    header = ["mechanism", *(["vs PID tuned on the mechanism"] if known else []), "paper's arm"]
     rows = [[m, *([known.get(m, "—")] if known else []), paper.get(m, "—")] for m in mechs]
     return "\n".join([" ".join(lead), "", *common.md_table(header, rows)])
 
@@ -334,7 +420,9 @@ def _cost(record: dict) -> str:
             f"the invocations that filled the stores. The last invocation ran "
             f"{c['runs_this_time']:,} of them in {c['seconds']:.0f} s (tuning "
             f"{c['tuning_seconds']:.0f} s; an arm tuned before is read back from its cache) on "
-            f"{c['engine']}.")
+            f"{c['engine']}."
+            + (" This record was re-derived from those stores without running." if
+               c.get("rederived") else ""))  # fmt: skip
 
 
 def table(record: dict) -> str:
@@ -350,6 +438,18 @@ def table(record: dict) -> str:
                 f"{arms[a]['ci_high']:.2f}]" if a in arms else "—" for a in record["arms"]]])
     lines = ["Divergence at the tuned settings (diverged/runs, 95 % Clopper-Pearson):", "",
              *common.md_table(header, rows), ""]  # fmt: skip
+    tr = record.get("tracking")
+    if tr:
+        rows = []
+        for m in record["mechanisms"]:
+            for pose in record["poses"]:
+                arms = tr["counts"]["tuned"][pose].get(m, {})
+                rows.append([m, pose, *[
+                    f"{arms[a]['diverged']}/{arms[a]['n']} [{arms[a]['ci_low']:.2f}, "
+                    f"{arms[a]['ci_high']:.2f}]" if a in arms else "—" for a in record["arms"]]])
+        lines += [f"Tracking failure at the tuned settings (diverged or RMSE after the transient "
+                  f"above {tr['threshold_m']:g} m; failed/runs, 95 % Clopper-Pearson):", "",
+                  *common.md_table(header, rows), ""]  # fmt: skip
     v = record["verdict"]["mechanisms"]
     names = list(record["contrasts"])
     lines += ["Verdicts (ratio of both-stable RMSE, 95 % interval, pairs):", "",

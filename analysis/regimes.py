@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis import _regimes_coverage as rcov
 from analysis import _regimes_design as design
 from analysis import _regimes_report as report
 from analysis import _regimes_stats as rstats
@@ -35,7 +36,8 @@ from analysis import common, tuning
 from wmr import sweep
 
 __all__ = ["STEM", "TITLE", "ARMS", "LEVELS", "CONTRASTS", "run", "check", "render", "table",
-           "analyse"]  # fmt: skip
+           "analyse", "rederive", "StaleStore", "tracking",
+           "model_frame", "COVERED"]  # fmt: skip
 
 STEM = "regimes"
 TITLE = "When does adaptation pay? A matched design with equal tuning"
@@ -48,23 +50,25 @@ POSES = ("raw", "filtered")
 #: by the tuning objective on the training set (not by the evaluation).
 CONTRASTS = (("iapid-nn-dekf", "adaptive-pid"), ("adaptive-pid", "pid"),
              ("best-adaptive", "best-fixed"), ("iapid-oracle", "iapid-nn-dekf"))  # fmt: skip
+#: The contrasts whose rule is measured on planted truth at the defaults' layout (6 seeds).
+COVERED = (("iapid-nn-dekf", "adaptive-pid"), ("best-adaptive", "best-fixed"))
 #: Study levels: the quick one (make test), the committed record's, the full design.
 LEVELS = {
     "quick": {"arms": ("pid", "adaptive-pid", "iapid-nn-dekf", "iapid-oracle", "backstepping"),
               "mechanisms": ("ideal", "lag-delay"), "mujoco": (), "trajectories": ("sinusoid",),
               "seeds": 3, "default_seeds": 3, "duration": 7.0, "mujoco_seeds": 0,
               "mujoco_duration": None, "per_setting": 1, "train_seeds": (100,),
-              "train_duration": 3.0, "training": 1},
+              "train_duration": 3.0, "training": 1, "coverage_replicates": 4},
     "record": {"arms": ARMS, "mechanisms": tuple(design.MECHANISMS),
                "mujoco": tuple(design.MUJOCO), "trajectories": design.TRAJECTORIES, "seeds": 20,
                "default_seeds": 6, "duration": None, "mujoco_seeds": 3, "mujoco_duration": None,
                "per_setting": 3, "train_seeds": (100,), "train_duration": 20.0, "training": 5,
-               "recovery_seeds": 10, "known_pid": True},
+               "recovery_seeds": 10, "known_pid": True, "coverage_replicates": 100},
     "full": {"arms": ARMS, "mechanisms": tuple(design.MECHANISMS),
              "mujoco": tuple(design.MUJOCO), "trajectories": design.TRAJECTORIES, "seeds": 20,
              "default_seeds": 20, "duration": None, "mujoco_seeds": 10, "mujoco_duration": None,
              "per_setting": 10, "train_seeds": (100, 101), "train_duration": 20.0,
-             "training": 5, "recovery_seeds": 20, "known_pid": True},
+             "training": 5, "recovery_seeds": 20, "known_pid": True, "coverage_replicates": 200},
 }  # fmt: skip
 
 
@@ -84,9 +88,9 @@ def _tune(d: dict, eng, store: Path) -> dict:
 
 
 def _known_pid(d: dict, eng, store: Path) -> dict:
-    """The fixed PID tuned per mechanism on each pose source (the labelled upper bound of what
-    knowing the robot buys): the training trajectories on that mechanism's plant, the same
-    budget rule."""
+    """The fixed PID tuned per mechanism on each pose source ("PID tuned on the test mechanism":
+    what tuning for the robot's known defect buys a fixed PID at the same budget, no bound of
+    anything): the training trajectories on that mechanism's plant, the same budget rule."""
     budget = tuning.Budget(per_setting=d["per_setting"], seeds=tuple(d["train_seeds"]))
     out: dict = {}
     for pose in POSES:
@@ -263,6 +267,18 @@ def compute(out, level: str, workers: int | None = None) -> dict:
             manifests.append(sweep.run_sweep(sweep.load_spec(p), store / p.stem, progress=None,
                                              stale="set-aside", eng=eng))  # fmt: skip
     seconds = time.perf_counter() - t0
+    cost = {"runs": int(sum(m["jobs"] for m in manifests)),
+            "runs_this_time": int(sum(m["runs_this_time"] for m in manifests)),
+            "run_seconds_total": float(sum(m["run_seconds_total"] for m in manifests)),
+            "seconds": seconds, "tuning_seconds": t_tune,
+            "engine": manifests[0]["engine"], "workers": manifests[0]["workers"]}  # fmt: skip
+    return _assemble(out, level, d, done, store, tuned, known, cost)
+
+
+def _assemble(out, level: str, d: dict, done, store: Path, tuned: dict, known: dict | None,
+              cost: dict) -> dict:  # fmt: skip
+    """The record from the stores of ``done`` (analyse, recovery, the known-PID contrast, the
+    arms' settings), written with its table and figure."""
     rows = _frame(done, store)
     record = analyse(rows, tuned)
     record["recovery"] = _recovery(done, store, tuned)
@@ -282,18 +298,55 @@ def compute(out, level: str, workers: int | None = None) -> dict:
                                      "optimiser": "CMA-ES (cma), default population, seeds 0 "
                                                   "and 1, restart 0 from the defaults"},
                           "arms": tuned},
-                  cost={"runs": int(sum(m["jobs"] for m in manifests)),
-                        "runs_this_time": int(sum(m["runs_this_time"] for m in manifests)),
-                        "run_seconds_total": float(sum(m["run_seconds_total"]
-                                                       for m in manifests)),
-                        "seconds": seconds, "tuning_seconds": t_tune,
-                        "engine": manifests[0]["engine"], "workers": manifests[0]["workers"]})
+                  cost=cost)
+    record["tracking"] = tracking(rows, tuned, record)
+    record["coverage"] = {"setting": "default", "contrasts": {
+        f"{a} - {b}": rcov.coverage(model_frame(rows, tuned, (a, b), "default"),
+                                    d.get("coverage_replicates", 20))
+        for a, b in COVERED}}  # fmt: skip
     record["verdict"] = report.verdicts(record)
     record["figures"] = [common.save_figure(out, f"{STEM}_contrasts.png",
                                             report.figure(record))]  # fmt: skip
     common.write_record(out, STEM, record)
     common.write_table(out, STEM, table(record))
     return record
+
+
+class StaleStore(RuntimeError):
+    """A store of the record does not hold the runs of its spec (re-deriving would rerun)."""
+
+
+def rederive(out, level: str = "record", base: Path | None = None) -> dict:
+    """The record at ``level`` re-derived from its stores without running anything: the tuned
+    settings and the cost read from the record in ``base`` (default: the committed one), the
+    specs rebuilt from them the stores' own (the same text, spec and code digests, every job's
+    row present; else :class:`StaleStore`), then :func:`compute`'s analysis of the rows."""
+    from wmr.engine.sweeps import code_digest, finished_jobs
+
+    old = common.load_record(base or COMMITTED, STEM)
+    if not old or old.get("level") != level:
+        raise StaleStore(f"no {level} record in {base or COMMITTED}")
+    d, store = LEVELS[level], _store(Path(out), level)
+    tuned, known = old["tuning"]["arms"], (old.get("known_pid") or {}).get("tuning")
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        fresh = _specs(d, tuned, Path(tmp), known)
+        done = []
+        for lv, pose, p in fresh:
+            for f in [p, *Path(tmp).glob("*@*.toml")]:
+                kept = store / "specs" / f.name
+                if not kept.exists() or kept.read_text() != f.read_text():
+                    raise StaleStore(f"{kept}: not the spec this record's settings give")
+            done.append((lv, pose, store / "specs" / p.name))
+    for _, _, p in done:
+        spec = sweep.load_spec(p)
+        man = json.loads((store / p.stem / "manifest.json").read_text())
+        if man["spec_digest"] != spec.digest or man["code_digest"] != code_digest():
+            raise StaleStore(f"{store / p.stem}: its digests are not this code's and spec's")
+        if len(finished_jobs(store / p.stem)) != spec.n_jobs:
+            raise StaleStore(f"{store / p.stem}: runs missing")
+    return _assemble(out, level, d, done, store, tuned, known, {**old["cost"], "rederived": True})
 
 
 def _known(rows, tuned: dict, known: dict) -> dict:
@@ -314,10 +367,11 @@ def _known(rows, tuned: dict, known: dict) -> dict:
            for pose in POSES}  # fmt: skip
     ok = p[~p.failed_a & ~p.failed_b].copy()
     ok["delta"] = np.log(ok.tail_position_a) - np.log(ok.tail_position_b)
-    return {"label": "best adaptive arm (tuned once) - fixed PID tuned per mechanism (an upper "
-                     "bound of what knowing the robot buys a fixed PID)",
+    return {"label": "best adaptive arm (tuned once) - PID tuned on the test mechanism (same "
+                     "budget; the training trajectories on that mechanism's plant)",
             "tuning": known, "divergence": div,
-            "model": rstats.contrast_model(ok) if len(ok) > 2 else None}  # fmt: skip
+            "model": rstats.contrast_model(ok, apart=tuple(design.MUJOCO)) if len(ok) > 2
+            else None}  # fmt: skip
 
 
 def _best(tuned: dict, pose: str, arms) -> str:
@@ -354,6 +408,23 @@ def _join(x, y):
     """Runs of arm a (``x``) and arm b (``y``) on the same index: ``*_a`` and ``*_b`` columns."""
     cols = ["tail_position", "failed"]
     return x[cols].add_suffix("_a").join(y[cols].add_suffix("_b"), how="inner").reset_index()
+
+
+def _stable(p):
+    """The both-stable pairs of ``p`` (:func:`_join`'s columns) with their ``delta`` = log r_a -
+    log r_b: the model's frame."""
+    ok = p[~p.failed_a & ~p.failed_b & (p.tail_position_a > 0) & (p.tail_position_b > 0)].copy()
+    ok["delta"] = np.log(ok.tail_position_a) - np.log(ok.tail_position_b)
+    return ok
+
+
+def model_frame(rows, tuned: dict, contrast: tuple[str, str], level: str):
+    """The model's frame of ``contrast`` (a, b) at ``level`` ("tuned", "default"): the
+    both-stable pairs of every pose source with ``delta``."""
+    best = {pose: {"best-adaptive": _best(tuned, pose, ADAPTIVE),
+                   "best-fixed": _best(tuned, pose, FIXED)} for pose in POSES}
+    p = _pairs_of(rows, *contrast, best)
+    return _stable(p[p.level == level])
 
 
 def _endpoints(p, mechs, trajs) -> dict:
@@ -395,10 +466,9 @@ def analyse(rows, tuned: dict) -> dict:
             pl = p[p.level == lv]
             contrasts[name][lv] = {pose: _endpoints(pl[pl.pose == pose], mechs, trajs)
                                    for pose in POSES}  # fmt: skip
-            ok = pl[~pl.failed_a & ~pl.failed_b & (pl.tail_position_a > 0)
-                    & (pl.tail_position_b > 0)].copy()  # fmt: skip
-            ok["delta"] = np.log(ok.tail_position_a) - np.log(ok.tail_position_b)
-            contrasts[name][lv]["model"] = rstats.contrast_model(ok) if len(ok) > 2 else None
+            ok = _stable(pl)
+            contrasts[name][lv]["model"] = (rstats.contrast_model(ok, apart=tuple(design.MUJOCO))
+                                            if len(ok) > 2 else None)  # fmt: skip
     pp = _paper_pairs(rows)
     paper = {"label": "the paper's asymmetric arm: IAPID-NN-DEKF on the filtered pose vs APID on "
                       "the raw pose, defaults", "endpoints": _endpoints(pp, mechs, trajs)}
@@ -409,6 +479,27 @@ def analyse(rows, tuned: dict) -> dict:
             "best": best, "divergence": div, "contrasts": contrasts, "paper_arm": paper,
             "margins": {"relative": rstats.REL_MARGIN, "absolute": rstats.ABS_MARGIN},
             "alpha": rstats.ALPHA}  # fmt: skip
+
+
+def tracking(rows, tuned: dict, record: dict) -> dict:
+    """The second endpoint, tracking failure (``_regimes_stats.TRACKING_M``): per setting level,
+    pose source, mechanism and arm the count with its Clopper-Pearson interval (as
+    divergence's); and each verdict that changes when "diverged" is replaced by "failed to
+    track" (the model on the both-tracking pairs, McNemar on tracking failure)."""
+    r = rows.assign(failed=rstats.failed_to_track(rows.failed, rows.tail_position))
+    alt = analyse(r, tuned)
+    before = report.verdicts(record)["mechanisms"]
+    after = report.verdicts({**record, "contrasts": alt["contrasts"]})["mechanisms"]
+    changes = []
+    for m, by in before.items():
+        for name, v in by.items():
+            for setting, x, y in (("tuned", v, after[m][name]),
+                                  ("default", v.get("default"), after[m][name].get("default"))):
+                if x and y and x["verdict"] != y["verdict"]:
+                    changes.append({"mechanism": m, "contrast": name, "setting": setting,
+                                    "both_stable": x["verdict"], "both_tracking": y["verdict"]})
+    return {"threshold_m": rstats.TRACKING_M, "reason": rstats.TRACKING_REASON,
+            "counts": alt["divergence"], "verdict_changes": changes}
 
 
 def check(record: dict) -> None:
@@ -444,6 +535,21 @@ def check(record: dict) -> None:
                             assert t["mean_diff"] is None and not t["equivalent_rel"]
                             assert not t["equivalent_abs"]
     assert set(record["verdict"]["mechanisms"]) == set(record["mechanisms"])
+    cov = record["coverage"]["contrasts"]
+    assert set(cov) == {f"{a} - {b}" for a, b in COVERED}, list(cov)
+    for c in cov.values():
+        assert set(c["intervals"]) == {"normal", "t(G-1)"} and c["replicates"] > 0
+        for by in c["intervals"].values():
+            assert set(by) == {f"{r:g}" for r in rcov.RATIOS}
+            for x in by.values():
+                assert 0 <= x["coverage_cells"] <= 1 and abs(sum(x["verdicts"].values()) - 1) < 1e-9
+    tr = record["tracking"]
+    for lv, by in tr["counts"].items():  # a diverged run failed to track: counts at least those
+        for pose, mechs in by.items():
+            for m, arms in mechs.items():
+                for c, x in arms.items():
+                    d = record["divergence"][lv][pose][m][c]
+                    assert x["n"] == d["n"] and d["diverged"] <= x["diverged"] <= x["n"], (m, c)
 
 
 def table(record: dict) -> str:
@@ -455,8 +561,10 @@ def render(record: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m analysis.regimes [--out DIR] [--level quick|record|full] [--workers N]``:
-    compute the study at that level (``make regimes``: full), check it, say where it went."""
+    """``python -m analysis.regimes [--out DIR] [--level quick|record|full] [--workers N]
+    [--rederive]``: compute the study at that level (``make regimes``: full), or with
+    ``--rederive`` re-derive the committed record's level from its stores without running
+    (:func:`rederive`; exit 1 if a store is stale), check it, say where it went."""
     import argparse
 
     import matplotlib
@@ -466,9 +574,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default="paper")
     parser.add_argument("--level", choices=list(LEVELS), default="record")
     parser.add_argument("--workers", type=int, default=None)
+    parser.add_argument("--rederive", action="store_true",
+                        help="re-derive the record from its stores; never run")
     args = parser.parse_args(argv)
     t0 = time.perf_counter()
-    record = compute(args.out, args.level, args.workers)
+    if args.rederive:
+        try:
+            record = rederive(args.out, args.level)
+        except StaleStore as err:
+            print(f"{STEM}: not re-derived: {err}", file=sys.stderr)
+            return 1
+    else:
+        record = compute(args.out, args.level, args.workers)
     try:
         check(record)
     except AssertionError as err:

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from analysis import _regimes_coverage as rcov
 from analysis import _regimes_design as design
 from analysis import _regimes_report as report
 from analysis import _regimes_stats as rstats
@@ -147,6 +148,67 @@ def test_the_model_recovers_a_planted_contrast():
     assert report.classify({**fit["mechanisms"]["lag"], "n": 5}, False) == "undecided"
 
 
+def _layout(n_seeds: int, seed_sd: float, pair_sd: float, seed: int = 1) -> pd.DataFrame:
+    """Units of the defaults' kind (mechanisms x poses x trajectories x seeds) with delta from
+    :func:`analysis._regimes_coverage.simulate` at a planted 1.0 and the given noise."""
+    units = pd.DataFrame([{"mechanism": m, "pose": p, "trajectory": t, "seed": s}
+                          for m in ("ideal", "lag") for p in ("raw", "filtered")
+                          for t in ("a", "b", "c") for s in range(n_seeds)])  # fmt: skip
+    sd = {m: {"seed_sd": seed_sd, "pair_sd": pair_sd} for m in ("ideal", "lag")}
+    return rcov.simulate(units, sd, 1.0, np.random.default_rng(seed))
+
+
+def test_the_noise_estimate_recovers_planted_noise_levels():
+    df = _layout(200, 0.02, 0.01)
+    sd = rcov.noise(df)
+    for m in ("ideal", "lag"):  # 200 seeds: the SDs' sampling error ~ 1/sqrt(2 * 200) = 5 %
+        assert abs(sd[m]["seed_sd"] / 0.02 - 1) < 0.2 and abs(sd[m]["pair_sd"] / 0.01 - 1) < 0.1
+    assert rcov.noise(_layout(30, 0.0, 0.01))["lag"]["seed_sd"] < 0.004  # none planted: ~0
+
+
+def test_the_rule_on_planted_truth_gives_the_planted_verdict():
+    """At the defaults' 6 seeds, noise of the record's IAPID - APID size (0.01 per pair): a
+    planted 1.0 and 0.97 come out "same within 5 %", 0.90 "pays", 1.10 "costs"."""
+    frame = _layout(6, 0.003, 0.01)
+    c = rcov.coverage(frame, replicates=8, seed=3)
+    assert c["clusters"] == 6 and c["pairs"] == len(frame)
+    for interval in ("normal", "t(G-1)"):
+        by = c["intervals"][interval]
+        for ratio, word in rcov.TRUTH.items():
+            assert by[f"{ratio:g}"]["verdicts"][word] >= 0.8, (interval, ratio, by)
+            assert by[f"{ratio:g}"]["correct"] == by[f"{ratio:g}"]["verdicts"][word]
+    t = c["intervals"]["t(G-1)"]
+    assert all(0.75 <= x["coverage_cells"] <= 1.0 for x in t.values())  # 32 intervals each
+    # a larger noise: a planted 0.90 is no longer found every time (the rule is not a constant)
+    loud = rcov.coverage(_layout(6, 0.05, 0.3), replicates=8, seed=3, use_t=(True,))
+    assert loud["intervals"]["t(G-1)"]["0.9"]["verdicts"]["pays"] < 0.8
+
+
+def test_tracking_failure_counts_on_known_runs():
+    failed = [False, False, True, False, False, False]
+    rmse = [0.01, 0.3, 0.02, math.nan, rstats.TRACKING_M, 0.2000001]
+    got = rstats.failed_to_track(failed, rmse)
+    assert got.tolist() == [False, True, True, True, False, True]  # at the threshold: tracks
+    d = rstats.divergence(got)
+    assert (d["n"], d["diverged"]) == (6, 4)
+
+
+def test_mujoco_mechanisms_are_tested_apart():
+    """A mechanism given as ``apart`` stays out of the joint mechanism test: planting a large
+    contrast on it moves that test only when it is pooled."""
+    df, _ = _synthetic()
+    mj = df[df.mechanism == "ideal"].assign(mechanism="mujoco", delta=lambda x: x.delta + 1.0)
+    base = df[df.mechanism != "lag"]  # ideal and slip only
+    both = pd.concat([base, mj[mj.seed < 3]], ignore_index=True)
+    pooled = rstats.contrast_model(both)["tests"]
+    apart = rstats.contrast_model(both, apart=("mujoco",))["tests"]
+    alone = rstats.contrast_model(base)["tests"]
+    assert apart["mechanism"]["df"] == 1 and pooled["mechanism"]["df"] == 2
+    assert apart["mechanism"]["p"] == pytest.approx(alone["mechanism"]["p"], rel=0.05)
+    assert apart["apart"]["mechanisms"] == ["mujoco"] and apart["apart"]["mechanism"] is None
+    assert "apart" not in pooled
+
+
 # ---------------------------------------------------------------------------------------------
 # A quick run through the engine
 
@@ -177,6 +239,37 @@ def test_quick_run_is_whole_consistent_and_renders(quick):
     bad["arms_run"]["tuned"]["raw"]["adaptive-pid"]["filtered"] = True
     with pytest.raises(AssertionError):
         regimes.check(bad)
+    # tracking failure counted from the store's rows directly (diverged, an error, or a tail
+    # RMSE above the threshold or not a number)
+    from wmr import sweep
+
+    for pose in regimes.POSES:
+        rows = sweep.read_rows(out / ".regimes-store" / f"tuned-{pose}").to_pandas()
+        rows["mechanism"] = rows.scenario.str.split("@").str[1]
+        for (m, c), g in rows.groupby(["mechanism", "controller"]):
+            k = int((g.diverged | (g.status != "ok") | ~(g.tail_position <= 0.2)).sum())
+            x = record["tracking"]["counts"]["tuned"][pose][m][c]
+            assert (x["diverged"], x["n"]) == (k, len(g)), (m, c)
+
+
+def test_the_record_is_rederived_from_its_stores_and_a_stale_one_refused(quick):
+    """``rederive`` reads the stores only: the same record (but for its cost's flag), and a
+    store whose spec is not the one the record's settings give is refused, not rerun (in the
+    quick study's folder: a store's digest names its files' paths; the files are restored)."""
+    record, out = quick
+    path = out / "results" / "regimes.json"
+    spec = out / ".regimes-store" / "specs" / "tuned-raw.toml"
+    kept, text = path.read_bytes(), spec.read_text()
+    try:
+        again = regimes.rederive(out, "quick", base=out)
+        assert again["cost"].pop("rederived") is True
+        assert json.loads(json.dumps(again)) == json.loads(json.dumps(record))
+        spec.write_text(text.replace("seeds = 3", "seeds = 4"))
+        with pytest.raises(regimes.StaleStore, match="tuned-raw"):
+            regimes.rederive(out, "quick", base=out)
+    finally:
+        path.write_bytes(kept)
+        spec.write_text(text)
 
 
 def _rerun(record: dict, level: str, pose: str, mech: str, traj: str, arms) -> dict:
