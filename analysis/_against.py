@@ -200,11 +200,11 @@ def table(rec: dict) -> list[str]:
 
 #: The performance record's note on this measurement (``analysis.performance.notes``).
 NOTE = (
-    "against (with wmr bench --against REF): analysis._against; this tree and a git "
-    "worktree of REF timed in fresh processes in turn (ABBA), per-run and one-step CPU medians; "
-    "ratio = median over the pairs of this / REF with a distribution-free interval (order "
-    "statistics).  adaptive-pid~approximate is APID without the exact gradient's heading term "
-    "(this tree only when REF predates the setting): the difference to adaptive-pid is the "
-    "exact gradient's own cost.  Rows @python and @mujoco: 2 s runs through the Python driver and "
-    "on the shipped MuJoCo robot; per step = (run - set-up) / steps."
+    "against (with wmr bench --against REF): analysis._against times this tree and a git "
+    "worktree of REF in fresh processes in turn (ABBA), per-run and one-step CPU medians. The "
+    "ratio is the median over the pairs of this / REF, with a distribution-free interval (order "
+    "statistics). The row adaptive-pid~approximate is APID without the exact gradient's heading "
+    "term (this tree only when REF predates the setting): the difference to adaptive-pid is the "
+    "exact gradient's own cost. Rows @python and @mujoco are 2 s runs through the Python driver "
+    "and on the shipped MuJoCo robot; per step = (run - set-up) / steps."
 )

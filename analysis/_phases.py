@@ -153,9 +153,10 @@ def table(phases: dict) -> list[str]:
 
 #: The performance record's note on this measurement (``analysis.performance.notes``).
 NOTE = (
-    "phases: analysis._phases; each phase of wmr.loop (sense = measurement and "
-    "estimate, law with saturation, plant, the pose filter's predict, score) timed alone in a "
-    "jitted loop over the inputs a kept lemniscate run gave it, the minimum of interleaved "
-    "rounds, CPU time; kernel is loop.run of the same run.  run_overhead_ms: CPU time of a "
-    "one-step run (prepare, the kernel's call, the record), the minimum of interleaved repeats."
+    "phases: analysis._phases times each phase of wmr.loop alone in a jitted loop, over the "
+    "inputs a kept lemniscate run gave it (sense = measurement and estimate, law with "
+    "saturation, plant, the pose filter's predict, score). Each is the minimum of interleaved "
+    "rounds, in CPU time; kernel is loop.run of the same run. The set-up, run_overhead_ms, is "
+    "the CPU time of a one-step run (prepare, the kernel's call, the record), the minimum of "
+    "interleaved repeats."
 )

@@ -23,12 +23,12 @@ ROUNDS = 3
 STEP_SIGNAL = "solve_time"
 _US, _MS = 1e6, 1e3
 
-NOTE = ("python_controllers: each Python-level controller runs through the loop's Python driver "
-        f"on {ROUNDS} full lemniscate runs of its own after the warm-up (quick: 2), not "
-        "interleaved with the compiled ones. us_per_step is the whole loop per step (min over the "
-        "runs, median beside it). step_ms is the distribution of the controller's own step, its "
-        f"logged {STEP_SIGNAL!r} (nmpc's preview, solve and bookkeeping), pooled over every step "
-        "of the runs.")  # fmt: skip
+NOTE = ("python_controllers: each Python-level controller runs through the loop's Python "
+        f"driver on {ROUNDS} full lemniscate runs of its own after the warm-up (quick: 2), not "
+        "interleaved with the compiled ones. The loop's us_per_step is the whole loop per step "
+        "(min over the runs, median beside it). Its step_ms is the distribution of the "
+        f"controller's own step, its logged {STEP_SIGNAL!r} (nmpc's preview, solve and "
+        "bookkeeping), pooled over every step of the runs.")  # fmt: skip
 
 
 def names() -> tuple[str, ...]:
