@@ -171,11 +171,14 @@ def _small_truths(record: dict) -> list[str]:
             calm = [e["estimates"][name]["final"]["mean"] for e in cases if not e["disturbances"]]
             hit = [e["estimates"][name]["final"]["mean"] for e in cases if e["disturbances"]]
             text = (f"{TRUTH_OF[name]} on the {e0['plant']} plant has its truth, "
-                    f"{d['truth']:.4g}, inside the ±{record['tolerance']} band itself: its final "
-                    f"mean is {_span(calm, 4)} without a disturbance")
+                    f"{d['truth']:.4g}, inside the ±{record['tolerance']} band itself, so the band "
+                    f"does not test it: its final mean is {_span(calm, 4)} without a disturbance")
             if hit:
                 text += f" and {_span(hit, 4)} with one"
-            out.append(text + ".")
+            held = [e["estimates"][name]["final"] for e in cases]
+            held = sum(f["ci_low"] <= d["truth"] <= f["ci_high"] for f in held)
+            out.append(text + f". Its final 95 % interval holds the truth on {held} of "
+                       f"{len(cases)} trajectories: this estimate is not shown to converge.")
     return list(dict.fromkeys(out))
 
 
@@ -188,9 +191,14 @@ def _disturbed(record: dict) -> str | None:
     settle = [d["settle_max_s"] for e in cases for d in e["estimates"].values()]
     late = max(s for s in settle if s is not None) if any(s is not None for s in settle) else None
     wtxt = ", ".join(f"{a:g}–{b:g} s" for a, b in windows)
+    worst = max(d["final_max_error"] for e in cases for d in e["estimates"].values())
+    end = ("still within" if worst <= record["tolerance"] else "outside") + (
+        f" ±{record['tolerance']} at the end (largest error {worst:.4f})")
     return (f"On {', '.join(sorted({e['trajectory'] for e in cases}))} the velocity disturbance "
             f"({wtxt}) is read as a change of the input map: the estimates leave the band and "
-            f"settle again by {late:.1f} s at the latest, still within the tolerance at the end.")
+            f"settle again by {late:.1f} s at the latest, {end}. There, a lower RMSE than BSC's "
+            "comes partly from compensating the disturbance through wrong estimates, not from "
+            "identifying the plant.")
 
 
 def render(record: dict) -> str:
@@ -206,8 +214,21 @@ def render(record: dict) -> str:
             "difference's 95 % t interval excludes 0, else *undecided*.")
     # the answer first (where it beats IAPID-NN-DEKF and BSC), then how well it estimates,
     # then the design and the rule the answer rests on
-    notes = [*(s for o in others for s in _against(record, o)), *_convergence(record),
-             *_small_truths(record)]  # fmt: skip
+    lead = ("At the default settings, which are not equal tuning: Adaptive BSC's identification "
+            "gains were chosen on the lemniscate with the wheel-radius and unequal-wheels plants "
+            "(wmr/controllers/adaptive_bsc.py), IAPID-NN-DEKF runs at the paper's rate. "
+            "Adaptive BSC against BSC is the matched contrast (the same law, raw pose, with and "
+            "without adaptation).")
+    ideal = [e for e in record["cases"].values() if e["plant"] == "ideal"]
+    plain = sum(e["rmse"]["backstepping"]["mean"] < e["rmse"]["iapid-nn-dekf"]["mean"]
+                for e in ideal)  # fmt: skip
+    paper = ("Against IAPID-NN-DEKF the arms differ in more than adaptation: it acts on the "
+             "filtered pose and, as the paper's eq. 7, has no reference feed-forward. BSC "
+             f"without adaptation already has the lower error on {plain} of {len(ideal)} ideal-"
+             "plant cases. The regime study compares tuned arms and withholds its tuned verdicts.")
+    ordered = sorted(others, key=lambda o: o != "backstepping")  # the matched contrast first
+    notes = [lead, *(s for o in ordered for s in _against(record, o)), paper,
+             *_convergence(record), *_small_truths(record)]  # fmt: skip
     if (dist := _disturbed(record)) is not None:
         notes.append(dist)
     notes += [intro, rule, "Plants outside the model of (A1), such as lag, delay, slip and the "
