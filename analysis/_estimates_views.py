@@ -141,6 +141,14 @@ def _against(record: dict, other: str) -> list[str]:
     else:
         rest = [c for v in ("same", "higher", "undecided") for c in by.get(v, [])]
         out.append(f"It does not beat {label} on {', '.join(rest)}.")
+    small = [c for v in ("lower", "higher") for c in by.get(v, [])
+             if record["cases"][c]["compare"][other].get("equivalent_abs")]  # fmt: skip
+    if small:
+        diff = [1e3 * abs(record["cases"][c]["compare"][other]["mean_diff"]) for c in small]
+        margin = 1e3 * record["cases"][small[0]]["compare"][other]["tost_abs"]["delta"]
+        out.append(f"On {', '.join(small)} the difference is {_span(diff, 2)} mm: outside ±5 % "
+                   f"but equivalent within ±{margin:g} mm (TOST, the regime study's absolute "
+                   "margin).")
     return out
 
 
@@ -231,6 +239,11 @@ def render(record: dict) -> str:
              *_convergence(record), *_small_truths(record)]  # fmt: skip
     if (dist := _disturbed(record)) is not None:
         notes.append(dist)
-    notes += [intro, rule, "Plants outside the model of (A1), such as lag, delay, slip and the "
-              "MuJoCo robot, are the regime study's."]  # fmt: skip
+    div = {c: sum(e["rmse"][c]["n_diverged"] for e in record["cases"].values())
+           for c in record["controllers"]}  # fmt: skip
+    runs = record["seeds"] * len(record["cases"])
+    notes += [intro, rule, "Diverged runs (their own endpoint; none enters a mean): "
+              + ", ".join(f"{controllers.label(c)} {k} of {runs}" for c, k in div.items()) + ".",
+              "Plants outside the model of (A1), such as lag, delay, slip and the MuJoCo robot, "
+              "are the regime study's."]  # fmt: skip
     return common.section(TITLE, notes, table(record), record.get("figures", []))
