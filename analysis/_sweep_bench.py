@@ -107,7 +107,7 @@ def throughput(controllers=("iapid-nn-dekf", "pid"), workers: int = 2, quick: bo
     sweep on the lemniscate).  The engine's own costs (an empty task, an idle cluster) are
     measured with the default scenario only."""
     # each parallel sweep runs ~10 s (a 4-5 s one measured 0.82-1.0 from run to run: noise)
-    runs = runs or {"iapid-nn-dekf": 60 if quick else 600, "pid": 600 if quick else 10000}
+    runs = runs or {"iapid-nn-dekf": 30 if quick else 600, "pid": 300 if quick else 10000}
     machinery = scenario == "lemniscate"
     out = {"workers": workers, "repeats": repeats, "scenario": scenario, "controllers": {}}
     with tempfile.TemporaryDirectory(prefix="wmr-sweep-bench-") as tmp:
