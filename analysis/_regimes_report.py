@@ -425,31 +425,32 @@ def _cost(record: dict) -> str:
                c.get("rederived") else ""))  # fmt: skip
 
 
+def _count_rows(record: dict, counts: dict) -> list[list[str]]:
+    """Rows (mechanism, pose, one ``k/n [low, high]`` cell per arm) of a table of event counts
+    ``counts[pose][mechanism][arm]`` (divergence, tracking failure)."""
+    rows = []
+    for m in record["mechanisms"]:
+        for pose in record["poses"]:
+            arms = counts[pose].get(m, {})
+            rows.append([m, pose, *[
+                f"{arms[a]['diverged']}/{arms[a]['n']} [{arms[a]['ci_low']:.2f}, "
+                f"{arms[a]['ci_high']:.2f}]" if a in arms else "—" for a in record["arms"]]])
+    return rows
+
+
 def table(record: dict) -> str:
     """Per mechanism and arm at the tuned settings: divergence (k/n, Clopper-Pearson) per pose
     source, and the verdicts (``tables/regimes.md``)."""
     header = ["mechanism", "pose", *[_lbl(a) for a in record["arms"]]]
-    rows = []
-    for m in record["mechanisms"]:
-        for pose in record["poses"]:
-            arms = record["divergence"]["tuned"][pose].get(m, {})
-            rows.append([m, pose, *[
-                f"{arms[a]['diverged']}/{arms[a]['n']} [{arms[a]['ci_low']:.2f}, "
-                f"{arms[a]['ci_high']:.2f}]" if a in arms else "—" for a in record["arms"]]])
     lines = ["Divergence at the tuned settings (diverged/runs, 95 % Clopper-Pearson):", "",
-             *common.md_table(header, rows), ""]  # fmt: skip
+             *common.md_table(header, _count_rows(record, record["divergence"]["tuned"])),
+             ""]  # fmt: skip
     tr = record.get("tracking")
     if tr:
-        rows = []
-        for m in record["mechanisms"]:
-            for pose in record["poses"]:
-                arms = tr["counts"]["tuned"][pose].get(m, {})
-                rows.append([m, pose, *[
-                    f"{arms[a]['diverged']}/{arms[a]['n']} [{arms[a]['ci_low']:.2f}, "
-                    f"{arms[a]['ci_high']:.2f}]" if a in arms else "—" for a in record["arms"]]])
         lines += [f"Tracking failure at the tuned settings (diverged or RMSE after the transient "
                   f"above {tr['threshold_m']:g} m; failed/runs, 95 % Clopper-Pearson):", "",
-                  *common.md_table(header, rows), ""]  # fmt: skip
+                  *common.md_table(header, _count_rows(record, tr["counts"]["tuned"])),
+                  ""]  # fmt: skip
     v = record["verdict"]["mechanisms"]
     names = list(record["contrasts"])
     lines += ["Verdicts (ratio of both-stable RMSE, 95 % interval, pairs):", "",
