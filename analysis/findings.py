@@ -144,8 +144,7 @@ def margins(mar: dict, bnd: dict | None) -> Finding:
 def robots(rob: dict) -> Finding:
     """Where the kinematic model stops predicting the physics robot, and which controller to use
     on which robot model (the ladder; the regime study adds the tuned arms)."""
-    from analysis import _robots_views as views
-    from analysis.robots import TITLE
+    from analysis.robots import TITLE, views
 
     lo, hi = views.ratio_range(rob)
     slid = [p["demand"] for p in rob["sliding"] if p["sliding"]]

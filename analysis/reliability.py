@@ -23,9 +23,9 @@ from analysis import common
 from analysis.common import fmt
 from wmr import cli, controllers
 from wmr import scenario as scn
-from wmr.ekf import repair_covariance
-from wmr.sim import simulate
-from wmr.study import Job, run_jobs
+from wmr.closedloop.sim import simulate
+from wmr.engine.study import Job, run_jobs
+from wmr.estimation.ekf import repair_covariance
 
 __all__ = ["STEM", "TITLE", "BAD_SCENARIOS", "BAD_OPTIONS", "bad_inputs", "long_runs",
            "seam_crossings", "fault_injection", "determinism", "run", "check", "table", "render"]
@@ -140,9 +140,10 @@ def bad_inputs() -> dict:
 def long_runs(hours: float = 1.0, names=None) -> dict:
     """A long run of every controller (``names``: those only; no trajectory kept): finite, and
     memory independent of the run length (peak traced allocation of a run of 2 chunks of
-    ``wmr.loop.CHUNK`` steps vs the full run; below one chunk the buffers are smaller, so that
+    ``wmr.closedloop.step.CHUNK`` steps vs the full run; below one chunk the buffers are smaller, so
+    that
     is the fair baseline)."""
-    from wmr.loop import CHUNK
+    from wmr.closedloop.step import CHUNK
 
     sc = scn.load(scn.builtin("lemniscate"))
     out = {}

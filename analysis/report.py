@@ -16,8 +16,8 @@ from pathlib import Path
 
 import analysis
 from analysis import common, findings
-from analysis._ablations import backstepping_damping
 from analysis.common import fmt
+from analysis.reproduction.ablations import backstepping_damping
 from wmr import controllers
 from wmr import scenario as scn
 from wmr.io import atomic_write_text
@@ -32,7 +32,7 @@ def lagged_channels(dyn, dt: float) -> dict:
     """The inner velocity loop of the lagged-velocity plant seen from a command held over one
     step.
 
-    Per channel (``v`` with the mass, ``w`` with the inertia; ``wmr.plant``):
+    Per channel (``v`` with the mass, ``w`` with the inertia; ``wmr.robots.plant``):
     ``mass v' = nominal_mass bw (a - v) - f v`` is first order with time constant
     ``tau = mass / (nominal_mass bw + f)`` [s] and static gain
     ``g = nominal_mass bw / (nominal_mass bw + f)``; a command ``a`` held over ``[0, dt]`` moves
@@ -85,7 +85,7 @@ def _dann_row() -> tuple[str, str, str]:
              "EKF with the paper's P0, Q, R: u = u_bsc + NN(e1, e2, sin e3, cos e3 − 1, v_r, "
              "w_r), innovation q_r,k − q̂_k through the nominal unicycle's one-step Jacobian G")
     why = ("design not given; notes §4.2.  It compensates the error the base law leaves, as a "
-           "static function of (e, v_r, w_r).  On the lagged velocity loop (`wmr.plant`, "
+           "static function of (e, v_r, w_r).  On the lagged velocity loop (`wmr.robots.plant`, "
            f"`{LAGGED_SCENARIO}`, v/w channels) a command held one step moves the pose by "
            "g ρ G, ρ = 1 − (τ/dt)(1 − e^(−dt/τ)) (" + "; ".join(parts) + "): its EKF's direction "
            "has the right sign and an effect overstated by 1/(g ρ); a static gain loss g is a "

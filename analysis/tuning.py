@@ -320,7 +320,8 @@ def bounded(rmse, diverged) -> np.ndarray:
 
 
 def objective(rows: Sequence) -> float:
-    """The mean score (:func:`bounded`) of a point's training runs (``wmr.result.Row``)."""
+    """The mean score (:func:`bounded`) of a point's training runs
+    (``wmr.closedloop.result.Row``)."""
     return float(np.mean(bounded([r.tail_position for r in rows], [r.diverged for r in rows])))
 
 

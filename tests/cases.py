@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import pytest
 from hypothesis import strategies as st
 
-from wmr.kinematics import INTEGRATORS
-from wmr.references import KINDS
+from wmr.model.kinematics import INTEGRATORS
+from wmr.model.references import KINDS
 
 #: Numbers recomputed here against a record committed from ANOTHER machine agree to this relative
 #: tolerance, not to the bit: the records under paper/ were made on a CPU with AVX-512, where
@@ -532,7 +532,7 @@ def rows_on_every_engine(spec, folder, home, before_workers=None):
     (a folder that holds none of the spec's files); every run ok and the three stores' rows equal.
     ``before_workers`` runs after the serial sweep (e.g. to remove a file the workers must not
     need)."""
-    from wmr import study, sweep
+    from wmr.engine import study, sweep
 
     def rows(out):
         df = sweep.read_rows(out).to_pandas().sort_values("job_id").reset_index(drop=True)

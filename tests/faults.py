@@ -1,7 +1,7 @@
 """Job functions that fail on purpose, for the engine's fault tests (tests/test_engine.py).
 
 Each calls the engine's real row (``wmr.engine.jobs.job_row``) and, for the jobs of ``ids``
-only, makes the run itself raise (``wmr.sim.simulate`` replaced for that one call, in the
+only, makes the run itself raise (``wmr.closedloop.sim.simulate`` replaced for that one call, in the
 process that runs it: the error goes through the row mapping's own handling) or kills the
 worker process.  "Once" is kept in a marker file per job in ``folder``, so that it holds across
 worker processes (a LocalCluster's workers import this module: they inherit the driver's
@@ -14,7 +14,7 @@ import contextlib
 import os
 from pathlib import Path
 
-import wmr.sim
+import wmr.closedloop.sim
 from wmr.engine.jobs import job_row
 
 __all__ = ["once", "oserror_once", "exit_once", "oserror_always", "value_error_while"]
@@ -22,17 +22,17 @@ __all__ = ["once", "oserror_once", "exit_once", "oserror_always", "value_error_w
 
 @contextlib.contextmanager
 def _run_raises(err: BaseException):
-    """``wmr.sim.simulate`` raises ``err`` inside this block (this process only)."""
-    real = wmr.sim.simulate
+    """``wmr.closedloop.sim.simulate`` raises ``err`` inside this block (this process only)."""
+    real = wmr.closedloop.sim.simulate
 
     def failing(*args, **kwargs):
         raise err
 
-    wmr.sim.simulate = failing
+    wmr.closedloop.sim.simulate = failing
     try:
         yield
     finally:
-        wmr.sim.simulate = real
+        wmr.closedloop.sim.simulate = real
 
 
 def _row(job, err: BaseException | None):

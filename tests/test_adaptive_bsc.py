@@ -18,9 +18,9 @@ from scipy.optimize import minimize
 from wmr import cli, controllers
 from wmr import scenario as scn
 from wmr._settings import SettingError, from_table
+from wmr.closedloop.sim import simulate
 from wmr.controllers import adaptive_bsc as ab
-from wmr.kinematics import tracking_error
-from wmr.sim import simulate
+from wmr.model.kinematics import tracking_error
 
 #: The true map of the wheel-radius scenario (lemniscate-wheel-radius.toml), STATE order.
 WHEEL_RADIUS = (0.8, 0.0, 0.8, 0.0)

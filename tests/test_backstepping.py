@@ -11,11 +11,12 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from wmr import kinematics as km
-from wmr import references, sim
 from wmr import scenario as scn
 from wmr._settings import SettingError
+from wmr.closedloop import sim
 from wmr.controllers import backstepping
+from wmr.model import kinematics as km
+from wmr.model import references
 
 REFERENCES = {
     "circle": {"radius": 1.5, "period": 20.0},

@@ -1,5 +1,6 @@
-"""Tests of wmr.stability (Assumption 1, Lemma 2, eq. 48, Theorem 1) and of the boundedness study
-(analysis/boundedness.py); the probes it observes runs with are tested in test_probes.py."""
+"""Tests of wmr.estimation.stability (Assumption 1, Lemma 2, eq. 48, Theorem 1) and of the
+boundedness study (analysis/boundedness/); the probes it observes runs with are tested in
+test_probes.py."""
 
 from __future__ import annotations
 
@@ -14,11 +15,11 @@ from numpy.testing import assert_allclose
 
 from analysis import boundedness as bd
 from analysis import common
-from wmr import loop
 from wmr import scenario as scn
-from wmr import stability as stab
+from wmr.closedloop import step as loop
+from wmr.closedloop.sim import simulate
+from wmr.estimation import stability as stab
 from wmr.scenario import Disturbance
-from wmr.sim import simulate
 
 #: Round-off on closed-form arithmetic of a few operations.
 EXACT_RTOL = 1e-14

@@ -19,11 +19,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis import _calibration_methods as methods
-from analysis import _calibration_prior as prior
 from analysis import prose
+from analysis.calibration import methods, prior
 from wmr import scenario as scn
-from wmr.sim import simulate
+from wmr.closedloop.sim import simulate
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -266,7 +265,7 @@ def test_bootstrap_interval_is_seeded_and_covers_the_mean():
 
 
 def _small_tasks(n=3):
-    from analysis import _calibration_stages as stages
+    from analysis.calibration import stages
 
     space = stages.Space.of(stages.QUICK, ("bsc_k1", "noise_std"))
     return [dataclasses.replace(t, cases=tuple(c for c in t.cases if c[1] == "backstepping"))
@@ -274,7 +273,7 @@ def _small_tasks(n=3):
 
 
 def test_store_resumes_and_sets_another_version_aside(tmp_path, capsys):
-    from analysis._calibration_store import Evaluator, read_store, run_task
+    from analysis.calibration.store import Evaluator, read_store, run_task
 
     folder = tmp_path / "store"
     tasks = _small_tasks()
@@ -304,7 +303,7 @@ def test_store_resumes_and_sets_another_version_aside(tmp_path, capsys):
 def test_a_task_cut_by_an_interruption_runs_only_its_missing_runs(tmp_path):
     """A store holding part of a task's rows (a shard flushed mid-task): the task is not taken
     as finished; only its missing runs run, and the result is the whole task's."""
-    from analysis._calibration_store import Evaluator, run_task, task_jobs
+    from analysis.calibration.store import Evaluator, run_task, task_jobs
     from wmr.engine.jobs import job_row
 
     (task,) = _small_tasks(1)
@@ -317,7 +316,7 @@ def test_a_task_cut_by_an_interruption_runs_only_its_missing_runs(tmp_path):
 
 
 def test_the_store_digest_covers_the_shipped_scenarios_it_reads(tmp_path, monkeypatch):
-    from analysis._calibration_store import store_digest
+    from analysis.calibration.store import store_digest
 
     copies = {}
     for name in prior.SCENARIOS:
@@ -333,7 +332,7 @@ def test_the_store_digest_covers_the_shipped_scenarios_it_reads(tmp_path, monkey
 
 
 def test_an_error_is_a_row_not_a_crash():
-    from analysis._calibration_store import ERROR, Task, run_task
+    from analysis.calibration.store import ERROR, Task, run_task
 
     sc = scn.load(scn.builtin("sinusoid"))
     bad = Task("k", ((sc, "backstepping", "not settings"),), (0,))
@@ -374,7 +373,7 @@ def test_fit_scenarios_are_the_settings(tmp_path):
 
 
 def test_pareto_front_is_the_non_dominated_set():
-    from analysis._calibration_fair import pareto_front
+    from analysis.calibration.fair import pareto_front
 
     rng = np.random.default_rng(2)
     cost, effort = rng.random(60), rng.random(60)
@@ -386,7 +385,7 @@ def test_pareto_front_is_the_non_dominated_set():
 
 
 def test_fair_tuning_gains_span_their_ranges():
-    from analysis._calibration_fair import FREE_GAINS, gains_at
+    from analysis.calibration.fair import FREE_GAINS, gains_at
 
     for c, spec in FREE_GAINS.items():
         lo, hi = gains_at(c, [0.0] * len(spec)), gains_at(c, [1.0] * len(spec))
@@ -427,7 +426,7 @@ def _points_agree(record: dict, out: Path) -> None:
 
 
 def _space(record: dict):
-    from analysis import _calibration_stages as stages
+    from analysis.calibration import stages
 
     level = stages.LEVELS[record["level"]]
     return level, stages.Space.of(level, record["points"]["varied"],
@@ -438,10 +437,8 @@ def _rerun_points(record: dict, out: Path, indices) -> None:
     """Rebuild design points from the record alone (the design's seed, the settings varied and
     those fixed, the seeds) and run them here: their settings, rms log ratio and diverged runs
     are the points file's (the record is what its runs give)."""
-    from analysis import _calibration_methods as methods
-    from analysis import _calibration_stages as stages
-    from analysis._calibration_store import run_task
-    from analysis.calibration import read_points
+    from analysis.calibration import methods, read_points, stages
+    from analysis.calibration.store import run_task
 
     level, space = _space(record)
     varied = record["points"]["varied"]
@@ -463,8 +460,8 @@ def _rerun_points(record: dict, out: Path, indices) -> None:
 def _rerun_planted(record: dict, t: int) -> None:
     """Planted truth ``t`` rebuilt from the record (its unit coordinates, its seed) and run
     here with the rule's seeds: its max implausibility at the truth is the record's."""
-    from analysis import _calibration_rule as rule
-    from analysis._calibration_store import run_task
+    from analysis.calibration import rule
+    from analysis.calibration.store import run_task
 
     _, space = _space(record)
     pl = record["planted"]
@@ -608,9 +605,8 @@ def test_selection_and_rule_seeds_are_disjoint(quick):
     """Every level judges its verdict's candidates at K seeds none of which selected them (the
     design's and the fit's seeds); planted truths' paper runs never share the rule's seeds; a
     level or a fit that would share them is refused; the quick record says which it used."""
-    from analysis import _calibration_fit as fitmod
-    from analysis import _calibration_rule as rule
-    from analysis import _calibration_stages as stages
+    from analysis.calibration import fit as fitmod
+    from analysis.calibration import rule, stages
 
     for lv in stages.LEVELS.values():
         assert not set(lv.verdict_seeds) & set(lv.seeds), lv.name
@@ -632,7 +628,7 @@ def test_power_over_continuous_moves_counts_the_moves_that_keep_discrete_levels(
     """The record's continuous-only power is over the moves whose discrete settings kept the
     truth's level (rebuilt here from the truths and the generator) and counts its ruled-out
     points from the record's max implausibilities."""
-    from analysis import _calibration_rule as rule
+    from analysis.calibration import rule
 
     _, record = quick
     pl = record["planted"]

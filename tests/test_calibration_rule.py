@@ -13,13 +13,12 @@ import math
 import numpy as np
 import pytest
 
-from analysis import _calibration_methods as methods
-from analysis import _calibration_prior as prior
+from analysis.calibration import methods, prior
 
 
 def test_implausibility_closed_form():
     """I_i = |log z - mean log y| / sqrt(s^2 (1 + 1/K) + (h/z)^2 / 3 + log(1 + delta)^2)."""
-    from analysis import _calibration_rule as rule
+    from analysis.calibration import rule
 
     rng = np.random.default_rng(1)
     nums = prior.PAPER * np.exp(rng.normal(0.1, 0.2, (10, 36)))
@@ -43,7 +42,7 @@ def test_rule_threshold_is_sidak_t_and_covers_a_gaussian_truth():
     truth shifted by 3 sds in every number almost always."""
     from scipy.stats import t
 
-    from analysis import _calibration_rule as rule
+    from analysis.calibration import rule
 
     c_t = rule.threshold(10, rule="t")
     assert (2 * t.cdf(c_t, 9) - 1) ** 36 == pytest.approx(0.95, rel=1e-12)
@@ -69,7 +68,7 @@ def test_a_model_discrepancy_widens_the_rule_and_costs_power():
     dominates the implausibility's denominator, so a shift the zero-discrepancy rule rejects
     (3 seed sds in every number) is accepted at 10 % -- power must be measured at the
     discrepancy the verdict uses (the record's planted truths are)."""
-    from analysis import _calibration_rule as rule
+    from analysis.calibration import rule
 
     rng = np.random.default_rng(3)
     sd = np.full(36, 0.005)  # tiny seed spread, as at the best fit (median 0.0043)
@@ -85,7 +84,7 @@ def test_a_diverged_seed_is_no_rmse():
     """A number at which any seed diverged, while the target's is finite, is ruled out (the
     rule does not judge the finite seeds only); the other numbers are unchanged; a diverged
     target is matched only by a candidate that diverges there too."""
-    from analysis import _calibration_rule as rule
+    from analysis.calibration import rule
 
     rng = np.random.default_rng(3)
     nums = prior.PAPER * np.exp(rng.normal(0.0, 0.1, (10, 36)))
@@ -107,7 +106,7 @@ def test_clopper_pearson_closed_forms():
     an interior count against scipy's binomtest."""
     from scipy.stats import binomtest
 
-    from analysis import _calibration_rule as rule
+    from analysis.calibration import rule
 
     lo, hi = rule.clopper_pearson(0, 40)
     assert lo == 0.0 and hi == pytest.approx(1 - 0.025 ** (1 / 40), rel=1e-10)
@@ -122,7 +121,7 @@ def test_pawn_matches_salib_and_ranks_a_linear_function():
     with an inert x2: x0 first alone, x0 and x1 above the dummy, x2 not."""
     from SALib.analyze import pawn as salib_pawn
 
-    from analysis import _calibration_pawn as pawn
+    from analysis.calibration import pawn
 
     rng = np.random.default_rng(0)
     X = rng.random((1000, 3))
@@ -163,7 +162,7 @@ def test_threshold_is_the_normal_sidak_quantile_and_the_earlier_one_an_option():
     everything, the normal when the stated terms are)."""
     from scipy import stats
 
-    from analysis import _calibration_rule as rule
+    from analysis.calibration import rule
 
     assert rule.threshold(10) == stats.norm.ppf(1 - (1 - 0.95 ** (1 / 36)) / 2)
     assert rule.threshold(10) == pytest.approx(3.18978, abs=1e-5)
@@ -187,7 +186,7 @@ def test_the_rule_is_nominal_where_the_discrepancy_dominates_and_t_is_not():
     2000 truths, within 3 binomial sds) whether the seed spread is tiny, comparable or
     dominant; the earlier t threshold (4.53) accepts almost always where the stated
     discrepancy dominates -- looser than its level, the audit's finding 4."""
-    from analysis import _calibration_rule as rule
+    from analysis.calibration import rule
 
     rng = np.random.default_rng(11)
     n, k, delta = 2000, 10, 0.1
@@ -212,8 +211,8 @@ def test_a_diverged_run_is_implausible_by_the_rule_and_no_placeholder_enters_the
     out (the same runs without the divergence are not); the fit's objective averages no 10 m
     placeholder: it is the rms log ratio of the finite seeds' means plus the stated penalty
     times the diverged share, and without divergence exactly ``prior.discrepancy``'s."""
-    from analysis import _calibration_fit as fitmod
-    from analysis import _calibration_rule as rule
+    from analysis.calibration import fit as fitmod
+    from analysis.calibration import rule
 
     rng = np.random.default_rng(5)
     nums = prior.PAPER * np.exp(rng.normal(0.0, 0.02, (10, 36)))
@@ -245,7 +244,7 @@ def test_edges_are_the_best_fits_with_the_restarts_that_share_them():
     """Only the best restart's continuous settings on a box edge are flagged, each with the
     restarts ending on the same side; its discrete settings at an end level are listed apart;
     another restart's edges are not the fit's."""
-    from analysis import _calibration_fit as fitmod
+    from analysis.calibration import fit as fitmod
 
     def e(name, side, discrete=False):
         return {"setting": name, "side": side, "discrete": discrete, "u": 0.0, "value": 1.0,

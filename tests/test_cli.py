@@ -25,8 +25,9 @@ from cases import BASE_TOML, assert_names, invalid_params, mutated_scenarios, to
 from hypothesis import HealthCheck, assume, given, settings
 from numpy.testing import assert_array_equal
 
-from wmr import cli, metrics, sim
+from wmr import cli
 from wmr import scenario as scn
+from wmr.closedloop import metrics, sim
 
 REPO = Path(__file__).resolve().parents[1]
 CSV_HEADER = [

@@ -14,10 +14,10 @@ import pytest
 
 from wmr import controllers
 from wmr import scenario as scn
+from wmr.closedloop.sim import simulate
 from wmr.controllers import pid
 from wmr.controllers.pid import S_K, S_PHI, S_Q, S_STARTED, S_U
-from wmr.kinematics import EULER, EXACT, input_matrix, rotation, step_jacobians
-from wmr.sim import simulate
+from wmr.model.kinematics import EULER, EXACT, input_matrix, rotation, step_jacobians
 
 EXACT_TOL = 1e-14  # same arithmetic up to reassociation of a handful of terms
 
@@ -155,7 +155,8 @@ def test_weight_covariance_stays_spd_along_default_runs(paper, name, scenario_na
 def test_iapid_identifier_learns_the_plant_jacobian_direction(paper):
     """The identified Jacobian J = dt dNN/d(v, w) points roughly the way of the true ZOH Jacobian
     (cosine similarity of the 3x2 matrices, averaged over the last half of the run).  Its size is
-    biased by the closed-loop noise (analysis/jacobians.py measures it); direction is what SGD
+    biased by the closed-loop noise (analysis/jacobians/ measures it); direction is what
+    SGD
     needs for descent, so that is what is asserted."""
     r = simulate(paper["lemniscate"], "iapid-nn-dekf", seed=0)
     J = r.state[:, 6:12].reshape(-1, 3, 2)
@@ -181,8 +182,8 @@ def test_dann_starts_as_backstepping(paper):
 def test_printed_nn_jacobian_variant_uses_eqs_22_24(paper):
     """With printed_jacobian the logged J is dt times the printed eqs. 22-24 evaluated at the
     identifier's input and weights (replayed here step by step with the same law)."""
-    from wmr import nn
     from wmr.controllers import iapid_nn_dekf as ia
+    from wmr.estimation import nn
 
     sc = paper["sinusoid"]
     st = dataclasses.replace(sc.settings("iapid-nn-dekf"), printed_jacobian=True)
@@ -276,8 +277,8 @@ def test_identify_is_one_textbook_ekf_step_then_the_chain_rule_jacobian(paper, h
     then ``J = dt dNN/d(v, w)`` by central differences at the updated weights.  The second case
     puts the previous and current headings on both sides of +-pi: the target must use the short
     way round (a wrong wrap gives a target of ~-2 pi / dt and fails)."""
-    from wmr import ekf
     from wmr.controllers import iapid_nn_dekf as ia
+    from wmr.estimation import ekf
 
     sc = paper["lemniscate"]
     st = sc.settings("iapid-nn-dekf")

@@ -1,11 +1,12 @@
 """The step is written once and driven twice: the compiled kernel and the Python driver.
 
 The oracle for the Python driver is the compiled kernel (and the other way round): both run
-``wmr.loop._advance_template`` on the same noise and reference, so every record must be equal bit
-for bit (``assert_array_equal``, no tolerance) -- for every compiled registry row, with probes,
-with the built-in plant wrapped as a Python-level plant (``wmr.pyplant.TablePlant``), and with a
-Python-level controller that wraps a compiled law.  Any difference means the two drivers do not
-run the same step.
+``wmr.closedloop.step._advance_template`` on the same noise and reference, so every record must be
+equal bit
+for bit (``assert_array_equal``, no tolerance) -- for every compiled registry row, with probes, with
+the built-in plant wrapped as a Python-level plant (``wmr.robots.pyplant.TablePlant``), and with a
+Python-level controller that wraps a compiled law.  Any difference means the two drivers do not run
+the same step.
 """
 
 from __future__ import annotations
@@ -17,10 +18,12 @@ import pytest
 from numpy.testing import assert_array_equal
 from test_performance import short_lemniscate, short_perturbed  # the benchmark's short runs
 
-from wmr import controllers, loop, pyplant
+from wmr import controllers
+from wmr.closedloop import step as loop
+from wmr.closedloop.sim import simulate
 from wmr.controllers import PyController, backstepping
+from wmr.robots import pyplant
 from wmr.scenario import Estimator, Plant, PlantChange
-from wmr.sim import simulate
 
 COMPILED = [n for n, c in controllers.REGISTRY.items() if c.compiled]
 

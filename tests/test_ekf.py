@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from wmr import ekf
-from wmr import kinematics as kin
+from wmr.estimation import ekf
+from wmr.model import kinematics as kin
 
 REL_TOL = 1e-12  # the expanded Joseph form sums in another order: a few ulps of ||P||
 

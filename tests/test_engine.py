@@ -20,7 +20,7 @@ import pytest
 from cases import SHORT_LEMNISCATE
 
 from wmr import scenario as scn
-from wmr import study, sweep
+from wmr.engine import study, sweep
 from wmr.engine.faults import RETRIES, RetriesExhausted
 from wmr.engine.jobs import job_row
 

@@ -1,6 +1,6 @@
-"""The estimates study (analysis/estimates.py): adaptive-bsc's estimates against the planted
-plant tables, the settling time and the decision rule against closed forms, the record's check
-against planted faults."""
+"""The estimates study (analysis/estimates/): adaptive-bsc's estimates against the
+planted plant tables, the settling time and the decision rule against closed forms, the record's
+check against planted faults."""
 
 from __future__ import annotations
 
@@ -13,13 +13,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis import _regimes_design as design
 from analysis import estimates as est
 from analysis import prose
-from analysis._regimes_stats import pair_rmse
-from wmr.result import Row
-from wmr.sim import simulate
-from wmr.study import Job, run_job
+from analysis.regimes import design
+from analysis.regimes.stats import pair_rmse
+from wmr.closedloop.result import Row
+from wmr.closedloop.sim import simulate
+from wmr.engine.study import Job, run_job
 
 PAPER = Path(__file__).resolve().parents[1] / "paper"
 
@@ -154,7 +154,7 @@ def test_an_estimate_that_never_moves_is_reported_as_not_converging():
     """A planted fault: v_from_w frozen at 0 on every unequal-wheels case (truth 0.0075, inside
     the ±0.03 band, so the band alone would pass it); the section must say its final interval
     holds the truth on 0 of the trajectories."""
-    from analysis import _estimates_views as views
+    from analysis.estimates import views
 
     record = copy.deepcopy(json.loads((PAPER / "results" / "estimates.json").read_text()))
     for e in record["cases"].values():

@@ -16,9 +16,10 @@ import test_registry as contract
 
 import analysis
 from analysis import report
-from wmr import cli, controllers, references
+from wmr import cli, controllers
 from wmr import scenario as scn
-from wmr.sim import simulate
+from wmr.closedloop.sim import simulate
+from wmr.model import references
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "extending.md"
 

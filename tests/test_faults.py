@@ -10,8 +10,8 @@ import pytest
 from cases import SHORT_LEMNISCATE
 
 from wmr import scenario as scn
-from wmr import study
 from wmr.engine import faults as ef
+from wmr.engine import study
 from wmr.engine.jobs import job_row
 
 SC = scn.loads(SHORT_LEMNISCATE.format(duration=6.0))  # past the transient: no NaN in the rows
@@ -19,11 +19,11 @@ JOBS = [study.Job(SC, "pid", s, job_id=s) for s in range(4)]
 
 
 def _simulate_failing(monkeypatch, errors: dict):
-    """``wmr.sim.simulate`` raises ``errors[seed].pop(0)`` while that list lasts; the calls of
-    each seed are counted."""
-    import wmr.sim
+    """``wmr.closedloop.sim.simulate`` raises ``errors[seed].pop(0)`` while that list lasts; the
+    calls of each seed are counted."""
+    import wmr.closedloop.sim
 
-    real, calls = wmr.sim.simulate, {}
+    real, calls = wmr.closedloop.sim.simulate, {}
 
     def flaky(sc, controller, seed, **kw):
         calls[seed] = calls.get(seed, 0) + 1
@@ -31,7 +31,7 @@ def _simulate_failing(monkeypatch, errors: dict):
             raise errors[seed].pop(0)
         return real(sc, controller, seed, **kw)
 
-    monkeypatch.setattr(wmr.sim, "simulate", flaky)
+    monkeypatch.setattr(wmr.closedloop.sim, "simulate", flaky)
     return calls
 
 

@@ -1,11 +1,12 @@
-"""Tests of wmr/floquet.py: Floquet multipliers of the loops about a periodic reference orbit.
+"""Tests of wmr/linear/floquet.py: Floquet multipliers of the loops about a periodic reference
+orbit.
 
-Oracles: the closed form of a constant reference (a circle: ``Phi = A^N``, ``mu = eig(A)^N``
-with ``A`` built independently by python-control in ``wmr.loops``); the per-step Jacobians
-against python-control's loop at the local ``(v_r, w_r)``; the similarity of monodromies started
-at different phases; an extended-precision product for the round-off bounds; and the nonlinear
-simulator (``wmr.sim.simulate``), whose small perturbation must shrink by the slowest multiplier
-over one period.
+Oracles: the closed form of a constant reference (a circle: ``Phi = A^N``, ``mu = eig(A)^N`` with
+``A`` built independently by python-control in ``wmr.linear.loops``); the per-step Jacobians against
+python-control's loop at the local ``(v_r, w_r)``; the similarity of monodromies started at
+different phases; an extended-precision product for the round-off bounds; and the nonlinear
+simulator (``wmr.closedloop.sim.simulate``), whose small perturbation must shrink by the slowest
+multiplier over one period.
 """
 
 from __future__ import annotations
@@ -16,10 +17,10 @@ import math
 import numpy as np
 import pytest
 
-from wmr import floquet as fq
-from wmr import loops as lp
 from wmr import scenario as scn
-from wmr import symbolic as sym
+from wmr.linear import floquet as fq
+from wmr.linear import loops as lp
+from wmr.model import symbolic as sym
 
 DT = 0.01
 # Per-step Jacobians: CasADi's closed loop vs python-control's interconnection of CasADi's plant
@@ -63,7 +64,7 @@ def test_periods_and_orbits(scenarios):
 
 @pytest.mark.parametrize("controller", fq.CONTROLLERS)
 def test_step_jacobians_are_the_python_control_loops_at_the_local_reference(scenarios, controller):
-    """Each A_k is the frozen-time closed loop at (v_r(t_k), w_r(t_k)) (wmr.loops), and the
+    """Each A_k is the frozen-time closed loop at (v_r(t_k), w_r(t_k)) (wmr.linear.loops), and the
     mapped CasADi call equals its one-by-one evaluation; the PID's without feed-forward at the
     integrals' equilibrium is the same matrix."""
     ref = fq.orbit(scenarios["lemniscate"]).samples()

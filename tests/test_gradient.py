@@ -2,9 +2,9 @@
 
 Oracles: central finite differences of the cost ``F_k = e_k^T Gamma e_k / 2`` with respect to the
 six gains of the step that produced ``u_{k-1}``, pushed through the plant
-(``wmr.kinematics.step``) or through the identifier's one-step model; floating-point identities
-(``x - x = 0``, ``0 + x = x``) for the bit-level claims; the law's own increment read at two
-settings from one state.
+(``wmr.model.kinematics.step``) or through the identifier's one-step model; floating-point
+identities (``x - x = 0``, ``0 + x = x``) for the bit-level claims; the law's own increment read at
+two settings from one state.
 """
 
 from __future__ import annotations
@@ -14,13 +14,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from wmr import kinematics as kin
-from wmr import nn, references
 from wmr import scenario as scn
+from wmr.closedloop.sim import simulate
 from wmr.controllers import iapid_nn_dekf as ia
 from wmr.controllers import pid
 from wmr.controllers.pid import S_K, S_PHI, S_Q, S_U
-from wmr.sim import simulate
+from wmr.estimation import nn
+from wmr.model import kinematics as kin
+from wmr.model import references
 
 #: Relative error of the analytic gradient against central differences, where it is exact.  The
 #: step HK = 1e-3 on gains of O(1-10): F is within ~1e-9 of quadratic in K over a step (one plant

@@ -1,4 +1,4 @@
-"""Tests of ``wmr/identification.py``: the quality metrics of the Jacobian a run used.
+"""Tests of ``wmr/estimation/identification.py``: the quality metrics of the Jacobian a run used.
 
 Oracles: hand cases of the relative error; ``adaptive-pid``, which logs the exact ZOH Jacobian
 of the nominal plant, scores zero error and full agreement against the default true Jacobian
@@ -14,16 +14,16 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from wmr import kinematics as kin
 from wmr import scenario as scn
-from wmr.identification import (
+from wmr.closedloop.sim import simulate
+from wmr.estimation.identification import (
     QUALITY_KEYS,
     JacobianQuality,
     jacobian_quality,
     nominal_jacobian,
     rel_error,
 )
-from wmr.sim import simulate
+from wmr.model import kinematics as kin
 
 # Identical formulas evaluated twice differ by nothing; rounding-level agreement is a few ulp.
 ROUNDING = 1e-14
@@ -198,7 +198,7 @@ def _with_plant(name, section):
 
 def test_plant_jacobian_of_an_input_map_is_the_nominal_at_the_applied_input_times_the_map():
     """dq+/du = G(q, M u) M for a plant that only maps the command (exact arc with v_s = 0)."""
-    from wmr import identification as idf
+    from wmr.estimation import identification as idf
 
     sc = _with_plant("lemniscate", "[plant]\nv_gain = 0.8\nw_gain = 1.1\nw_from_v = 0.2\n")
     run = simulate(sc, "adaptive-pid", 0)
@@ -211,8 +211,8 @@ def test_plant_jacobian_of_an_input_map_is_the_nominal_at_the_applied_input_time
 
 
 def test_plant_jacobian_is_zero_with_a_delay_and_nominal_for_the_ideal_plant():
-    from wmr import identification as idf
     from wmr import scenario as scn_
+    from wmr.estimation import identification as idf
 
     sc = _with_plant("lemniscate", "[plant]\ndelay_steps = 1\n")
     run = simulate(sc, "pid", 0)

@@ -1,10 +1,11 @@
 """wmr identify (issue 20 item 4): the kinematic [plant] of DESIGN §3.3 fitted to a robot's log.
 
-Logs of *known* plants, made by the closed loop (``wmr.sim.simulate`` + ``RunResult.to_csv``, and
+Logs of *known* plants, made by the closed loop (``wmr.closedloop.sim.simulate`` +
+``RunResult.to_csv``, and
 ``wmr run`` itself) at the shipped noise level, or by hand-made commands driven through the
-loop's own plant half (``wmr.loop.plant_step``) for the logs too poor to identify a parameter.
-The truth is planted; the checks: recovery (the done-when of issue 20), the intervals' coverage
-over 20 seeds, the unidentifiable parameters said, bad logs, and the written table as a
+loop's own plant half (``wmr.closedloop.step.plant_step``) for the logs too poor to identify a
+parameter. The truth is planted; the checks: recovery (the done-when of issue 20), the intervals'
+coverage over 20 seeds, the unidentifiable parameters said, bad logs, and the written table as a
 scenario's ``[plant]`` reproducing the fitted trajectory.
 """
 
@@ -20,11 +21,11 @@ import pytest
 from numpy.testing import assert_array_equal
 from scipy import stats
 
-from wmr import identify as idf
-from wmr import loop
 from wmr import scenario as scn
 from wmr.cli import main
-from wmr.sim import simulate
+from wmr.closedloop import step as loop
+from wmr.closedloop.sim import simulate
+from wmr.estimation import identify as idf
 
 #: A plant with every parameter of §3.3 away from nominal (the unequal wheels of the shipped
 #: scenario, a 10 % gain error each way, a 50 ms lag, slip) and a 2-step delay.
@@ -71,7 +72,8 @@ def write_log(path, columns: dict) -> None:
 
 def hand_made(tmp_path, commands, plant=PLANT, seed=0, name="hand.csv"):
     """A minimal log (t, v, w, x_meas, y_meas, theta_meas) of ``commands`` (n, 2) driven
-    through the loop's plant half (``wmr.loop.plant_step``) from the origin, noise 0.01."""
+    through the loop's plant half (``wmr.closedloop.step.plant_step``) from the origin, noise
+    0.01."""
     commands = np.asarray(commands, dtype=float)
     n, dt = len(commands), 0.01
     sc = scn.from_dict({"name": "h", "duration": n * dt, "dt": dt, "initial_pose": [0, 0, 0],
@@ -97,8 +99,8 @@ def hand_made(tmp_path, commands, plant=PLANT, seed=0, name="hand.csv"):
 
 def test_replay_is_the_loops_plant_half(tmp_path):
     """Replaying a closed-loop log's commands and disturbance through ``identify.replay`` with
-    the true parameters gives the true poses of the run bit for bit: the replay is the loop's
-    plant half (delay, then disturbance, then ``wmr.plant.apply``) -- a disturbance added before
+    the true parameters gives the true poses of the run bit for bit: the replay is the loop's plant
+    half (delay, then disturbance, then ``wmr.robots.plant.apply``) -- a disturbance added before
     the delay, or the delay line started wrongly, would move every pose after the window."""
     dist = [scn.Disturbance(start=3.0, stop=5.0, velocity=(0.1, 0.3))]
     path, r = logged(tmp_path, closed_loop(8.0, disturbances=dist))
@@ -362,7 +364,7 @@ BASE = scn.builtin("lemniscate").read_text()
 
 def test_written_table_loads_and_reproduces_the_fit(recovered):
     """The written [plant] appended to a scenario loads (``wmr.scenario.loads``) with exactly the
-    fitted values, and the loop's own plant half (``wmr.loop.plant_step``) driven by that
+    fitted values, and the loop's own plant half (``wmr.closedloop.step.plant_step``) driven by that
     scenario with the log's commands -- each segment from its fitted initial pose -- gives the
     fitted trajectory bit for bit; a closed-loop run on it retraces the logged run within 2 mm
     (measured 1.05 mm after the slip sign became outward: the fitted values sit within their

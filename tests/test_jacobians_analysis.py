@@ -1,4 +1,5 @@
-"""Tests of the ``jacobians`` study (``analysis/jacobians.py``, ``analysis/_jacobian_points.py``).
+"""Tests of the ``jacobians`` study (``analysis/jacobians/``,
+``analysis/jacobians/points.py``).
 
 The batched CasADi evaluation against single calls; the point comparisons at ~50 points with
 the study's own thresholds (CasADi AD is the oracle); the printed network Jacobian failing at
@@ -19,13 +20,13 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from analysis import _jacobian_points as pts
 from analysis import common
 from analysis import jacobians as jac
+from analysis.jacobians import points as pts
 from wmr import scenario as scn
-from wmr import symbolic as sym
-from wmr.identification import jacobian_quality
-from wmr.sim import simulate
+from wmr.closedloop.sim import simulate
+from wmr.estimation.identification import jacobian_quality
+from wmr.model import symbolic as sym
 
 PAPER = Path(__file__).resolve().parents[1] / "paper"
 needs_paper = pytest.mark.skipif(not (PAPER / "results" / "jacobians.json").exists(),
@@ -201,10 +202,10 @@ def test_with_process_std_changes_only_the_pose_filters_process_noise():
 
 
 def test_target_noise_summary_is_the_pose_filters_differenced_error():
-    """Oracle: the pose filter's exact-model steady state (wmr.stability.
+    """Oracle: the pose filter's exact-model steady state (wmr.estimation.stability.
     random_walk_increment_noise) gives the std of the targets' noise; a smaller process noise
     smooths more and leaves less noise on the targets."""
-    from wmr import stability as stab
+    from wmr.estimation import stability as stab
 
     sc = _lemniscate(10.0)
     got = {}

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from wmr import kinematics as km
-from wmr.kinematics import EULER, EXACT, RK4
+from wmr.model import kinematics as km
+from wmr.model.kinematics import EULER, EXACT, RK4
 
 INTEGRATOR_PARAMS = [pytest.param(code, id=name) for name, code in km.INTEGRATORS.items()]
 

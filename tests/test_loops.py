@@ -1,6 +1,7 @@
-"""Tests of wmr/loops.py: the linearisation, the loops, the closed loops and the closed forms.
+"""Tests of wmr/linear/loops.py: the linearisation, the loops, the closed loops and the closed
+forms.
 
-Oracles: central differences of the **simulator's own** step (``wmr.kinematics.step`` and
+Oracles: central differences of the **simulator's own** step (``wmr.model.kinematics.step`` and
 ``tracking_error``, and the jitted PID law), CasADi's Jacobian of the whole nonlinear closed loop,
 closed-form stability conditions (Jury, Routh), ``exp(A dt)`` for the sampled backstepping loop,
 and two constructions of the same closed loop (``control.interconnect`` vs block matrices).
@@ -17,13 +18,13 @@ import pytest
 from numpy.testing import assert_allclose
 from oracles import central_fd as _central_fd
 
-from wmr import kinematics as kin
-from wmr import loops as lp
 from wmr import scenario as scn
-from wmr import symbolic as sym
 from wmr.controllers import pid
 from wmr.controllers.pid import S_INT, S_PREV, S_STARTED
-from wmr.references import sample
+from wmr.linear import loops as lp
+from wmr.model import kinematics as kin
+from wmr.model import symbolic as sym
+from wmr.model.references import sample
 
 SEED = 20240251
 DT = 0.01
@@ -233,10 +234,11 @@ def test_operating_point_validation():
 
 
 def _true_error_step(op, e, ua, u):
-    """One step of the true robot (``wmr.plant.lagged_step``, the simulator's own integration)
-    in error coordinates about the constant reference of ``op``: ``(e_next, ua_next)``."""
-    from wmr import plant
-    from wmr.kinematics import EXACT, rotation, step, tracking_error
+    """One step of the true robot (``wmr.robots.plant.lagged_step``, the simulator's own
+    integration) in error coordinates about the constant reference of ``op``: ``(e_next,
+    ua_next)``."""
+    from wmr.model.kinematics import EXACT, rotation, step, tracking_error
+    from wmr.robots import plant
 
     q_r = np.zeros(3)
     th = q_r[2] - e[2]
@@ -250,7 +252,7 @@ def _true_error_step(op, e, ua, u):
 @pytest.mark.parametrize("tau", [0.05, 0.3])
 def test_lagged_plant_is_the_linearisation_of_the_true_robots_step(tau):
     """The exact sampled (e, u_a) step of error_plant equals central differences of the true
-    robot's own step (``wmr.plant``) at perfect tracking, to O(h^2)."""
+    robot's own step (``wmr.robots.plant``) at perfect tracking, to O(h^2)."""
     op = lp.OperatingPoint(0.5, 0.3, 0.01, actuator_tau=tau)
     P = lp.error_plant(op)
     x0 = np.concatenate((np.zeros(3), op.u_r))
@@ -292,7 +294,7 @@ def test_max_stable_delay_matches_the_simulated_robot(controller):
     op = lp.operating_point(scn.load(scn.builtin("sinusoid")), "mean")
     d_max = lp.max_stable_delay(op, loops_of)
     assert 0 < d_max < 400
-    from wmr.sim import simulate
+    from wmr.closedloop.sim import simulate
 
     for d, grows in ((d_max - 2, False), (d_max + 2, True)):
         sc = lp.constant_reference_scenario(dataclasses.replace(op, delay_steps=d), 60.0,

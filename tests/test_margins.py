@@ -1,4 +1,5 @@
-"""Tests of wmr/margins.py (margins of the linearised loops) and of the study analysis/margins.py.
+"""Tests of wmr/linear/margins.py (margins of the linearised loops) and of the study
+analysis/margins/.
 
 Oracles: margins of loops computed by hand (an integrator, a two-step delay, the PI on a double
 integrator), the same margins from closed-loop eigenvalues only, python-control's own disk
@@ -19,11 +20,11 @@ import numpy as np
 import pytest
 
 from analysis import margins as study
-from wmr import loops as lp
-from wmr import margins as mg
 from wmr import scenario as scn
+from wmr.closedloop.sim import simulate
 from wmr.controllers import pid
-from wmr.sim import simulate
+from wmr.linear import loops as lp
+from wmr.linear import margins as mg
 
 DT = 0.01
 # Margins from the refined frequency response vs closed forms: limited by brentq/minimize
@@ -251,7 +252,7 @@ def test_quick_run_writes_its_files_and_passes_its_check(quick):
 
 @pytest.mark.slow
 def test_quick_record_holds_the_floquet_multipliers_and_the_check_guards_them(quick):
-    """The Floquet block (wmr.floquet): both loops stable about both periodic references, the
+    """The Floquet block (wmr.linear.floquet): both loops stable about both periodic references, the
     PID's slowest multiplier confirmed by the simulator on both, its table block rendered; the
     check rejects a failed closed form, a simulator disagreement and an unchecked PID."""
     tmp_path, _ = quick

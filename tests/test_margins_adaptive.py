@@ -1,4 +1,4 @@
-"""Margins of adaptive-bsc frozen at its estimates (analysis/_margins_adaptive.py): its frozen
+"""Margins of adaptive-bsc frozen at its estimates (analysis/margins/adaptive.py): its frozen
 law against backstepping's CasADi linearisation, a closed-form gain-margin shift, and the
 committed record against BSC's margins."""
 
@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis import _margins_adaptive as ma
 from analysis import margins as study
+from analysis.margins import adaptive as ma
 from wmr import scenario as scn
-from wmr.loops import BSC_GAINS, backstepping_controller, backstepping_loops, operating_point
-from wmr.margins import analyse_loops
+from wmr.linear.loops import BSC_GAINS, backstepping_controller, backstepping_loops, operating_point
+from wmr.linear.margins import analyse_loops
 
 PAPER = Path(__file__).resolve().parents[1] / "paper"
 #: Central differences of step 1e-6 on a smooth law: O(h^2) + round-off / h ~ 1e-10.
@@ -33,7 +33,7 @@ def _ops():
 @pytest.mark.parametrize("op", _ops(), ids=lambda o: o.label)
 def test_frozen_at_the_nominal_map_is_backsteppings_law(op):
     """adaptive_bsc.law (compiled, differenced) at the estimates (1, 0, 1, 0) equals
-    backstepping's gain by CasADi AD of wmr.symbolic's law: two implementations of eq. 7."""
+    backstepping's gain by CasADi AD of wmr.model.symbolic's law: two implementations of eq. 7."""
     D = ma.policy_gain(op, [1.0, 0.0, 1.0, 0.0])
     D_bsc = np.asarray(backstepping_controller(BSC_GAINS, op).D)
     np.testing.assert_allclose(D, D_bsc, rtol=0, atol=FD_TOL)
@@ -43,7 +43,7 @@ def test_a_frozen_gain_error_shifts_the_decoupled_v_margin_by_its_decibels():
     """On a straight line (w_r = 0) the v loop is decoupled (de1' = -dv, v = k1 e1): frozen at
     v_gain^ = a on the ideal plant its loop gain is BSC's / a, so its gain margin is BSC's plus
     20 log10(a) dB, and its phase margin is the one at that gain."""
-    from analysis._margins_nmpc import nmpc_loops
+    from analysis.margins.nmpc import nmpc_loops
 
     op = _ops()[0]
     assert op.w_r == 0.0

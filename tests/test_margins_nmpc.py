@@ -1,9 +1,9 @@
-"""nmpc's local linear feedback and its margins (``analysis._margins_nmpc``, issue 21 item 3).
+"""nmpc's local linear feedback and its margins (``analysis.margins.nmpc``, issue 21 item 3).
 
-Oracles: the library's tracking error (eq. 6, ``wmr.kinematics.tracking_error``) for the pose
+Oracles: the library's tracking error (eq. 6, ``wmr.model.kinematics.tracking_error``) for the pose
 placed at a given error; the reference's own inputs as the policy's value at zero error (the
 reference is a trajectory of the model, so it is the optimum); two finite-difference steps; and
-the simulated closed loop (``wmr.sim.simulate`` with the controller's default real-time
+the simulated closed loop (``wmr.closedloop.sim.simulate`` with the controller's default real-time
 iteration, no noise) against the linear model built from the gain.
 """
 
@@ -14,10 +14,10 @@ import math
 import numpy as np
 import pytest
 
-from analysis import _margins_nmpc as mn
+from analysis.margins import nmpc as mn
 from wmr import scenario as scn
-from wmr.kinematics import tracking_error
-from wmr.loops import (
+from wmr.closedloop.sim import simulate
+from wmr.linear.loops import (
     closed_loop_matrix,
     constant_reference_scenario,
     error_plant,
@@ -25,7 +25,7 @@ from wmr.loops import (
     slow_mode_error,
     start_state_map,
 )
-from wmr.sim import simulate
+from wmr.model.kinematics import tracking_error
 
 #: The two difference steps agree to this (measured 7e-8: truncation and solver noise, FD_STEP).
 FD_AGREE = 1e-6

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
-from wmr import metrics
+from wmr.closedloop import metrics
 
 
 def test_rmse_hand_computed():

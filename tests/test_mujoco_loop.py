@@ -15,10 +15,11 @@ from cases import rows_on_every_engine
 from numpy.testing import assert_array_equal
 from test_mujoco_robot import USER_MJCF
 
-from wmr import cli, sweep
+from wmr import cli
 from wmr import scenario as scn
-from wmr.mujoco_robot import MujocoRobot
-from wmr.sim import simulate
+from wmr.closedloop.sim import simulate
+from wmr.engine import sweep
+from wmr.robots.mujoco_robot import MujocoRobot
 
 SCENARIO = """\
 name = "mj"
@@ -94,7 +95,7 @@ def test_the_loop_drives_the_robot_as_the_contract_says():
 def test_each_changeable_key_takes_effect_at_its_time(key, away, default):
     """Every key a [[plant.change]] may set on the MuJoCo robot (plantspec.MODELS["mujoco"]):
     the same run up to the change, another after (``default``: the value in force before)."""
-    from wmr import plantspec
+    from wmr.robots import plantspec
 
     assert set(plantspec.changeable("mujoco")) >= {"mass", "com_offset", "friction"}
     sc = scn.loads(SHIPPED.replace("mass = 13.0", f"{key} = {away}"))
@@ -163,7 +164,7 @@ MUJOCO_SHIPPED = sorted(p.stem for p in (Path(scn.builtin("lemniscate")).parent 
 def _saturated_share(sc, r) -> float:
     """The share of steps at which a servo was at its torque limit: the run's commands replayed
     through a fresh robot (the loop's contract, checked above) with its diagnostics read."""
-    from wmr.mujoco_robot import DIAGNOSTICS
+    from wmr.robots.mujoco_robot import DIAGNOSTICS
 
     robot = MujocoRobot(sc.plant.model_table, sc.dt, [(c.at, c.values) for c in sc.plant.changes])
     robot.reset(np.array(sc.initial_pose))

@@ -1,4 +1,4 @@
-"""The MuJoCo differential-drive plant (wmr.mujoco_robot, DESIGN §3.7), on real MuJoCo.
+"""The MuJoCo differential-drive plant (wmr.robots.mujoco_robot, DESIGN §3.7), on real MuJoCo.
 
 Oracles: the firmware's wheel-speed formula; the unicycle arc and the kinematics of unequal
 wheels (closed forms); Newton's law at the torque limit (closed form); the pose's own finite
@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from wmr import mujoco_model as mm
-from wmr.mujoco_robot import CHANGEABLE, DIAGNOSTICS, MujocoRobot, MujocoSpec, heading
+from wmr.robots import mujoco_model as mm
+from wmr.robots.mujoco_robot import CHANGEABLE, DIAGNOSTICS, MujocoRobot, MujocoSpec, heading
 from wmr.scenario import ScenarioError
 
 DT = 0.01

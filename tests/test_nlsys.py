@@ -1,4 +1,4 @@
-"""The python-control closed loop (``wmr.nlsys``) against ``wmr.sim.simulate``.
+"""The python-control closed loop (``wmr.linear.nlsys``) against ``wmr.closedloop.sim.simulate``.
 
 The oracle is the compiled kernel: the nlsys's update function calls the same jitted phases and
 law in the same order on the same noise and reference, so its trajectory must equal
@@ -15,11 +15,13 @@ import pytest
 from numpy.testing import assert_array_equal
 from test_performance import short_lemniscate, short_perturbed  # the benchmark's short runs
 
-from wmr import controllers, loop, nlsys
+from wmr import controllers
 from wmr import scenario as scn
+from wmr.closedloop import step as loop
+from wmr.closedloop.sim import simulate
 from wmr.controllers import backstepping
+from wmr.linear import nlsys
 from wmr.scenario import Estimator
-from wmr.sim import simulate
 
 ct = pytest.importorskip("control")
 
@@ -85,7 +87,7 @@ def test_system_and_layout():
     sc = short_lemniscate()
     cl = nlsys.closed_loop(sc, "iapid-nn-dekf", 0)
     lay, sys = cl.layout, cl.system
-    n = sc.settings("iapid-nn-dekf").hidden * 4 + 10 + 3 * 10 + 3  # wmr.nn layout, N_IN = 4
+    n = sc.settings("iapid-nn-dekf").hidden * 4 + 10 + 3 * 10 + 3  # wmr.estimation.nn, N_IN = 4
     assert lay.n_theta == n and lay.n_states == 15 + lay.n_s + n + n * n
     assert (sys.nstates, sys.ninputs, sys.noutputs) == (lay.n_states, 8, 3)
     assert sys.isdtime(strict=True) and sys.dt == sc.dt

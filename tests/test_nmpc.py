@@ -1,12 +1,12 @@
 """Nonlinear MPC (``wmr.controllers.nmpc``, issue 21 item 1): the pieces that need no closed loop.
 
-Oracles: ipopt converged tightly on the same problem (the first command of the other solvers),
-an independent evaluation of the cost (M1) with the library's jitted ZOH step
-(``wmr.kinematics.step``), the reference sampler the loop reads, a fine-grid time average for the
-warm-start shift, and the limits themselves.  The closed-loop checks run through ``simulate`` (the
-loop's Python driver; no test here runs a loop of its own): the noise-free circle tracked to
-rounding, the real-time iteration's gap to a converged ipopt along a run, a forced solver failure
-as the run's stated cause, the solve-time record, and the fixed PID as the bar on the paper's
+Oracles: ipopt converged tightly on the same problem (the first command of the other solvers), an
+independent evaluation of the cost (M1) with the library's jitted ZOH step
+(``wmr.model.kinematics.step``), the reference sampler the loop reads, a fine-grid time average for
+the warm-start shift, and the limits themselves.  The closed-loop checks run through ``simulate``
+(the loop's Python driver; no test here runs a loop of its own): the noise-free circle tracked to
+rounding, the real-time iteration's gap to a converged ipopt along a run, a forced solver failure as
+the run's stated cause, the solve-time record, and the fixed PID as the bar on the paper's
 scenarios.
 """
 
@@ -19,12 +19,13 @@ import os
 import numpy as np
 import pytest
 
-from wmr import cli, controllers, references
+from wmr import cli, controllers
 from wmr import scenario as scn
 from wmr._settings import SettingError, from_table
+from wmr.closedloop.sim import simulate
 from wmr.controllers import nmpc
-from wmr.kinematics import integrator_code, step
-from wmr.sim import simulate
+from wmr.model import references
+from wmr.model.kinematics import integrator_code, step
 
 #: ipopt's tolerance for the oracle solution, and the agreement issue 21 asks of the first
 #: command (both converge to the same KKT point; 1e-10 leaves four orders of margin).
@@ -99,7 +100,7 @@ def test_the_problem_is_built_once_per_structure(lemniscate):
 
 
 def test_cost_is_M1_evaluated_independently(lemniscate):
-    """The CasADi cost against (M1) written out with the jitted ZOH step of wmr.kinematics."""
+    """The CasADi cost against (M1) written out with the jitted ZOH step of wmr.model.kinematics."""
     st = nmpc.Settings(horizon=6, weights=(3.0, 0.7, 0.2, 0.05), terminal_weight=4.0)
     c = nmpc.make(st, lemniscate)
     rng = np.random.default_rng(1)

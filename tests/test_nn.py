@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wmr import nn
+from wmr.estimation import nn
 
 SIZES = [(2, 10, 3), (4, 10, 3), (6, 8, 2), (4, 1, 3), (3, 20, 3)]
 IDS = [f"in{a}-h{b}-out{c}" for a, b, c in SIZES]

@@ -36,7 +36,7 @@ def test_the_wheel_holds_wmr_and_no_top_level_analysis(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     tops = {n.split("/")[0] for n in names}
     assert "analysis" not in tops, sorted(tops)
-    assert "wmr/loop.py" in names and "wmr/scenarios/mujoco/lemniscate.toml" in names
+    assert "wmr/closedloop/step.py" in names and "wmr/scenarios/mujoco/lemniscate.toml" in names
     assert "wmr/scenarios/lemniscate.toml" in names
 
 

@@ -1,16 +1,16 @@
 """The fast path (one numba kernel) against a straightforward reference, and the benchmark.
 
-The reference below is the closed loop of ``wmr.sim`` written out in plain Python/numpy, from the
-equations (docs/conventions.md, the module docstrings), without any of the library's jitted
-functions: noise drawn as ``wmr.sim`` draws it, the exact-arc plant, the pose EKF and the weight
-EKF as dense textbook Joseph updates (``np.linalg.solve``, O(n^3)), the network and its Jacobians
-as numpy matrices, the SGD gain step and the PID of eq. (7).  It reads only settings and the
-reference samples (``wmr.references.sample``, plain numpy) from the library.
+The reference below is the closed loop of ``wmr.closedloop.sim`` written out in plain Python/numpy,
+from the equations (docs/conventions.md, the module docstrings), without any of the library's jitted
+functions: noise drawn as ``wmr.closedloop.sim`` draws it, the exact-arc plant, the pose EKF and the
+weight EKF as dense textbook Joseph updates (``np.linalg.solve``, O(n^3)), the network and its
+Jacobians as numpy matrices, the SGD gain step and the PID of eq. (7).  It reads only settings and
+the reference samples (``wmr.model.references.sample``, plain numpy) from the library.
 
-The benchmark (``analysis/performance.py``): its floor is a correct EKF update, and the study
-shape (``run`` writes the record, table and figure; ``check`` asserts the ratio and correctness
-targets only).  No timing is asserted here: timings belong to the benchmark's record.  The
-python-control comparator is tested against ``simulate`` in ``tests/test_nlsys.py``.
+The benchmark (``analysis/performance/``): its floor is a correct EKF update, and the
+study shape (``run`` writes the record, table and figure; ``check`` asserts the ratio and
+correctness targets only).  No timing is asserted here: timings belong to the benchmark's record.
+The python-control comparator is tested against ``simulate`` in ``tests/test_nlsys.py``.
 """
 
 from __future__ import annotations
@@ -26,9 +26,9 @@ import pytest
 from numpy.testing import assert_allclose
 
 from wmr import scenario as scn
-from wmr.references import sample
+from wmr.closedloop.sim import simulate
+from wmr.model.references import sample
 from wmr.scenario import Disturbance, Limits
-from wmr.sim import simulate
 
 STEPS = 200
 #: Agreement asked by issue 6.  Differences come from the order of floating-point operations:
@@ -261,7 +261,8 @@ REFERENCES = {"iapid-nn-dekf": IapidReference, "adaptive-pid": AdaptivePidRefere
 
 
 def reference_run(sc, controller: str, seed: int) -> dict:
-    """The closed loop of ``wmr.sim`` (DESIGN §3.1) in plain Python, for ``sc.n_steps`` steps."""
+    """The closed loop of ``wmr.closedloop.sim`` (DESIGN §3.1) in plain Python, for ``sc.n_steps``
+    steps."""
     n, dt = sc.n_steps, sc.dt
     noise_ss, init_ss = np.random.SeedSequence(seed).spawn(2)  # the two streams of a run
     std = np.array(sc.noise.pose_std)
@@ -361,7 +362,7 @@ def test_iapid_adapts_in_the_compared_window():
 
 
 def test_floor_update_is_a_correct_ekf_update():
-    from analysis._floor import floor_update
+    from analysis.performance.floor import floor_update
 
     rng = np.random.default_rng(5)
     for n, m, specialise in ((83, 3, True), (83, 3, False), (20, 2, True), (7, 3, True)):
@@ -453,10 +454,10 @@ def test_quick_run_writes_the_study_and_passes_check(tmp_path):
 @pytest.mark.parametrize(("n", "level", "j"), [(5, 0.9, 1), (9, 0.9, 2), (10, 0.9, 2),
                                                 (20, 0.95, 6)])  # fmt: skip
 def test_median_interval_is_the_binomial_order_statistic(n, level, j):
-    """The interval of ``analysis._against.median_interval`` is ``(x_(j), x_(n+1-j))`` with the
-    largest ``j`` of binomial(n, 1/2) coverage >= level: j from the closed form, checked on a
-    permutation of 1..n (the k-th order statistic is k)."""
-    from analysis._against import median_interval
+    """The interval of ``analysis.performance.against.median_interval`` is ``(x_(j), x_(n+1-j))``
+    with the largest ``j`` of binomial(n, 1/2) coverage >= level: j from the closed form, checked on
+    a permutation of 1..n (the k-th order statistic is k)."""
+    from analysis.performance.against import median_interval
 
     cover = 1 - 2 * sum(math.comb(n, i) for i in range(j)) / 2**n
     assert cover >= level and (j == n // 2 or
@@ -467,10 +468,10 @@ def test_median_interval_is_the_binomial_order_statistic(n, level, j):
 
 
 def test_against_per_step_and_its_table_columns():
-    """``analysis._against``'s per-step figure is (run - set-up) / steps in us (a run of 2 ms
-    with 0.5 ms set-up over 3000 steps: 0.5 us), and the table shows it beside the run and
+    """``analysis.performance.against``'s per-step figure is (run - set-up) / steps in us (a run of
+    2 ms with 0.5 ms set-up over 3000 steps: 0.5 us), and the table shows it beside the run and
     set-up columns, a row the reference lacks the figure for as dashes (a tree predating it)."""
-    from analysis._against import _per_step, table
+    from analysis.performance.against import _per_step, table
 
     rec = _per_step({"run_ms": {"a": 2.0}, "setup_ms": {"a": 0.5}, "steps": {"a": 3000}})
     assert rec["step_us"]["a"] == pytest.approx(0.5, rel=1e-12)

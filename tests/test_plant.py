@@ -1,5 +1,6 @@
-"""The true robot (wmr.plant, DESIGN §3.3): each effect against a closed form, the integration's
-order and accuracy, the ideal plant bit for bit, and the controllers' ignorance of the plant."""
+"""The true robot (wmr.robots.plant, DESIGN §3.3): each effect against a closed form, the
+integration's order and accuracy, the ideal plant bit for bit, and the controllers' ignorance of the
+plant."""
 
 from __future__ import annotations
 
@@ -16,9 +17,11 @@ from cases import CROSS_MACHINE_RTOL
 from numpy.testing import assert_allclose, assert_array_equal
 from scipy.integrate import solve_ivp
 
-from wmr import loop, plant, plantspec, runsetup
 from wmr import scenario as scn
-from wmr.sim import simulate
+from wmr.closedloop import runsetup
+from wmr.closedloop import step as loop
+from wmr.closedloop.sim import simulate
+from wmr.robots import plant, plantspec
 
 DT = 0.01
 PAPER = Path(__file__).resolve().parents[1] / "paper"
@@ -28,7 +31,8 @@ EXACT_RTOL = 1e-12
 
 def drive(spec: scn.Plant, commands, q0=(0.0, 0.0, 0.0), dt=DT):
     """Drive the plant ``spec`` with the command sequence through the loop's plant half
-    (``wmr.loop.plant_step``: delay, no disturbance, no pose filter); the poses ``q_0 .. q_n``
+    (``wmr.closedloop.step.plant_step``: delay, no disturbance, no pose filter); the poses ``q_0 ..
+    q_n``
     and the final actual velocities."""
     sc = scn.from_dict({"name": "p", "duration": len(commands) * dt, "dt": dt,
                         "initial_pose": list(q0), "reference": {"kind": "circle", "radius": 1.0,
@@ -156,7 +160,7 @@ def test_a_change_applies_from_the_first_step_with_t_k_at_or_after_at():
 
 def _reference_step(spec, q0, vel0, a, dt):
     """One step of the 5-state ODE of DESIGN §3.3 by scipy's DOP853 at tolerance 1e-13 (the
-    oracle; the side velocity v_s = -slip v w written here, not taken from wmr.plant)."""
+    oracle; the side velocity v_s = -slip v w written here, not taken from wmr.robots.plant)."""
     row = spec.row()
     model = plant.MODEL_CODES[spec.model]
     tv, tau_v, tw, tau_w = plant.channels(np.array(row), model, *a)
@@ -315,7 +319,7 @@ def _poses(sc, spec):
 
 def test_every_key_is_declared_with_its_metadata():
     """Every key of [plant] and of the models' tables is a param() field (a plain field would be
-    left out of ideal, the table, to_json and describe), and wmr.plant's columns are the
+    left out of ideal, the table, to_json and describe), and wmr.robots.plant's columns are the
     specification's (a consistency check of the derivation)."""
     for cls in (scn.Plant, *(m.table for m in plantspec.MODELS.values() if m.table)):
         keys = {f.name for f in dataclasses.fields(cls) if f.metadata.get("toml", True)}

@@ -21,7 +21,7 @@ from test_extending import _example as example
 
 from wmr import cli, controllers, plugins
 from wmr import scenario as scn
-from wmr.sim import simulate
+from wmr.closedloop.sim import simulate
 
 
 @pytest.fixture
@@ -212,7 +212,7 @@ def test_a_plugin_sweeps_on_every_engine_with_the_serial_rows(tmp_path_factory, 
     content travels to the workers: ``wmr.engine.plugins_dask``) give the same rows."""
     from cases import SHORT_LEMNISCATE, rows_on_every_engine
 
-    from wmr import sweep
+    from wmr.engine import sweep
 
     folder = tmp_path_factory.mktemp("plugin-sweep")
     (folder / "my_trackers.py").write_text(example("plugin-file"))
@@ -226,7 +226,7 @@ def test_a_plugin_sweeps_on_every_engine_with_the_serial_rows(tmp_path_factory, 
 
 
 def test_a_bad_plugin_in_a_spec_is_a_sweep_error(tmp_path, clean_registry):
-    from wmr import sweep
+    from wmr.engine import sweep
 
     (tmp_path / "spec.toml").write_text(PLUGIN_SPEC.replace("my_trackers.py", "nowhere.py"))
     with pytest.raises(sweep.SweepError, match=r"plugins = 'nowhere.py'.*cannot be read"):

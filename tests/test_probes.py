@@ -1,5 +1,5 @@
-"""Tests of wmr.probes: probed runs are the kernel's, the identifier's pair is the law's, and the
-probes' readings against independent computations."""
+"""Tests of wmr.closedloop.probes: probed runs are the kernel's, the identifier's pair is the law's,
+and the probes' readings against independent computations."""
 
 from __future__ import annotations
 
@@ -10,12 +10,19 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from wmr import ekf, loop, nn
 from wmr import scenario as scn
-from wmr import stability as stab
-from wmr.probes import PoseProbe, WeightProbe, identical_runs, identifier_pair, target_noise
+from wmr.closedloop import step as loop
+from wmr.closedloop.probes import (
+    PoseProbe,
+    WeightProbe,
+    identical_runs,
+    identifier_pair,
+    target_noise,
+)
+from wmr.closedloop.sim import simulate
+from wmr.estimation import ekf, nn
+from wmr.estimation import stability as stab
 from wmr.scenario import Disturbance
-from wmr.sim import simulate
 
 #: The probe's innovation and the law's are the same jitted forward pass; the norm is summed in
 #: a different order.

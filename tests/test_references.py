@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from wmr import references
-from wmr.references import ReferenceSampler
+from wmr.model import references
+from wmr.model.references import ReferenceSampler
 
 #: One parameter set per kind (the paper's lemniscate and sinusoid; a circle of 3.5 turns in 35 s).
 PARAMS = {

@@ -13,11 +13,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis import _regimes_coverage as rcov
-from analysis import _regimes_design as design
-from analysis import _regimes_report as report
-from analysis import _regimes_stats as rstats
 from analysis import prose, regimes, tuning
+from analysis.regimes import coverage as rcov
+from analysis.regimes import design, report
+from analysis.regimes import stats as rstats
 
 PAPER = Path(__file__).resolve().parents[1] / "paper"
 RECORD = PAPER / "results" / "regimes.json"
@@ -150,7 +149,7 @@ def test_the_model_recovers_a_planted_contrast():
 
 def _layout(n_seeds: int, seed_sd: float, pair_sd: float, seed: int = 1) -> pd.DataFrame:
     """Units of the defaults' kind (mechanisms x poses x trajectories x seeds) with delta from
-    :func:`analysis._regimes_coverage.simulate` at a planted 1.0 and the given noise."""
+    :func:`analysis.regimes.coverage.simulate` at a planted 1.0 and the given noise."""
     units = pd.DataFrame([{"mechanism": m, "pose": p, "trajectory": t, "seed": s}
                           for m in ("ideal", "lag") for p in ("raw", "filtered")
                           for t in ("a", "b", "c") for s in range(n_seeds)])  # fmt: skip
@@ -241,7 +240,7 @@ def test_quick_run_is_whole_consistent_and_renders(quick):
         regimes.check(bad)
     # tracking failure counted from the store's rows directly (diverged, an error, or a tail
     # RMSE above the threshold or not a number)
-    from wmr import sweep
+    from wmr.engine import sweep
 
     for pose in regimes.POSES:
         rows = sweep.read_rows(out / ".regimes-store" / f"tuned-{pose}").to_pandas()
@@ -379,8 +378,9 @@ def test_a_committed_run_is_reproduced_by_wmr_run(tmp_path):
 @committed
 @pytest.mark.slow
 def test_a_committed_recovery_cell_is_its_runs():
-    """Recovery after the payload change (``wmr.measures``' recovery RMSE) of the tuned APID and
-    PID on the raw pose, every seed of the record, through the engine's job-to-row mapping."""
+    """Recovery after the payload change (``wmr.closedloop.measures``' recovery RMSE) of the tuned
+    APID and PID on the raw pose, every seed of the record, through the engine's job-to-row
+    mapping."""
     from wmr.engine import Job
     from wmr.engine.jobs import job_row
 

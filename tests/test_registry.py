@@ -11,10 +11,11 @@ import pytest
 from numpy.testing import assert_allclose
 
 import analysis
-from wmr import controllers, references
+from wmr import controllers
 from wmr import scenario as scn
 from wmr._settings import from_table
-from wmr.sim import simulate
+from wmr.closedloop.sim import simulate
+from wmr.model import references
 
 CONTROLLERS = list(controllers.REGISTRY.values())
 KINDS = list(references.KINDS.values())

@@ -106,22 +106,24 @@ def test_interrupted_reproduce_keeps_previous_results_and_a_rerun_completes(tmp_
 
 # --- The assumptions: what DA-NN can adapt to on the lagged velocity loop ----------------------
 
-#: The FD step of wmr.identification.plant_jacobian gives ~1e-10 relative; over one step the
+# The FD step of wmr.estimation.identification.plant_jacobian gives ~1e-10 relative; over one step
+# the
 #: heading turns by w dt <= ~5e-3 rad, which moves the (x, y) norm of the v column by ~1e-5.
 FD_RTOL, TURN_RTOL = 1e-7, 1e-4
 
 
 @pytest.mark.parametrize("k", [500, 3000], ids=["before the payload", "after the payload"])
 def test_lagged_channels_give_the_true_robots_one_step_jacobian(k):
-    """Oracle: the true robot's step (wmr.plant) differentiated in the command by central
-    differences (wmr.identification.plant_jacobian), along a run of the shipped lagged-velocity
-    plant: the heading row of the w column is g_w rho_w dt, the (x, y) part of the v column has
+    """Oracle: the true robot's step (wmr.robots.plant) differentiated in the command by central
+    differences (wmr.estimation.identification.plant_jacobian), along a run of the shipped
+    lagged-velocity plant: the heading row of the w column is g_w rho_w dt, the (x, y) part of the v
+    column has
     norm g_v rho_v dt, where the kinematic G has dt."""
     import dataclasses
 
     from wmr import scenario as scn
-    from wmr.identification import plant_jacobian
-    from wmr.sim import simulate
+    from wmr.closedloop.sim import simulate
+    from wmr.estimation.identification import plant_jacobian
 
     sc = scn.load(scn.builtin(report.LAGGED_SCENARIO))
     run = simulate(sc, "backstepping", 0)

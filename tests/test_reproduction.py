@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from analysis import reproduction as rep
-from analysis._ablations import (
+from analysis.reproduction.ablations import (
     CRITICAL_TOL,
     Variant,
     backstepping_damping,
@@ -25,7 +25,7 @@ from analysis._ablations import (
 from wmr import controllers
 from wmr import scenario as scn
 from wmr.controllers import backstepping
-from wmr.kinematics import rotation, tracking_error, unicycle_rhs
+from wmr.model.kinematics import rotation, tracking_error, unicycle_rhs
 
 PAPER = Path(__file__).resolve().parents[1] / "paper"
 COMMITTED = PAPER / "results" / "reproduction.json"

@@ -1,5 +1,5 @@
 """The reproduction study's statistics on hand-made rows: means, stds, ranking, paired tests
-(``analysis._reproduction_stats`` and ``analysis.reproduction.summarise``)."""
+(``analysis.reproduction.stats`` and ``analysis.reproduction.summarise``)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from analysis import _reproduction_stats as st
 from analysis import reproduction as rep
-from wmr.result import Row
+from analysis.reproduction import stats as st
+from wmr.closedloop.result import Row
 
 
 def _row(controller, seed, pos, scenario="lemniscate", diverged=False):

@@ -11,10 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis import _robots_views as views
 from analysis import prose, robots
+from analysis.robots import views
 from wmr import scenario as scn
-from wmr.sim import simulate
+from wmr.closedloop.sim import simulate
 
 PAPER = Path(__file__).resolve().parents[1] / "paper"
 COMMITTED = PAPER / "results" / "robots.json"

@@ -1,5 +1,5 @@
-"""The run's set-up (``wmr.runsetup``): what the runs of a scenario share is built once and gives
-the numbers a fresh build gives, and the shared parts are never written by a run.
+"""The run's set-up (``wmr.closedloop.runsetup``): what the runs of a scenario share is built once
+and gives the numbers a fresh build gives, and the shared parts are never written by a run.
 
 Oracles: numpy's own ``SeedSequence.spawn`` for the streams; a run with an emptied store (every
 shared part rebuilt) for the shared set-up; the tables' bytes before and after runs.
@@ -13,9 +13,11 @@ import numpy as np
 import pytest
 from numpy.testing import assert_array_equal
 
-from wmr import controllers, loop, runsetup
+from wmr import controllers
 from wmr import scenario as scn
-from wmr.sim import simulate
+from wmr.closedloop import runsetup
+from wmr.closedloop import step as loop
+from wmr.closedloop.sim import simulate
 
 
 @pytest.mark.parametrize("seed", [0, 7, 2**40, [3, 1, 4]])

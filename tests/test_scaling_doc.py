@@ -2,7 +2,7 @@
 
 Regenerate after ``wmr bench`` with::
 
-    .venv/bin/python -c "import json; from analysis import _sweep_bench as s; \
+    .venv/bin/python -c "import json; from analysis.performance import sweep as s; \
 s.update_scaling_doc('docs/scaling.md', json.load(open('paper/results/performance.json')))"
 """
 
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from analysis import _sweep_bench
+from analysis.performance import sweep as _sweep_bench
 
 ROOT = Path(__file__).resolve().parents[1]
 RECORD = ROOT / "paper" / "results" / "performance.json"

@@ -205,8 +205,8 @@ _PLANT_BASE = tomllib.loads(
           suppress_health_check=[HealthCheck.too_slow])  # fmt: skip
 @given(mutated_scenarios(_PLANT_BASE) | mutated_scenarios(_PLANT_BASE, values=_PY_VALUES))
 def test_any_mutation_of_a_plant_is_a_plant_or_a_scenario_error(doc):
-    """The [plant] parser (wmr.plantspec.parse) on mutations of a plant with a model table and a
-    change: a valid plant whose parameter rows are finite, or a one-line ScenarioError."""
+    """The [plant] parser (wmr.robots.plantspec.parse) on mutations of a plant with a model table
+    and a change: a valid plant whose parameter rows are finite, or a one-line ScenarioError."""
     try:
         sc = scenario.from_dict(doc, "prop.toml")
     except ScenarioError as err:
@@ -219,15 +219,16 @@ def test_any_mutation_of_a_plant_is_a_plant_or_a_scenario_error(doc):
         assert all(math.isfinite(x) for r in rows for x in r)
 
 
-# --- a new plant model is a row of wmr.plantspec.MODELS (DESIGN §3.7 comes this way) ------------
+# --- a new plant model is a row of wmr.robots.plantspec.MODELS (DESIGN §3.7 comes this way)
+# ------------
 
 
 def test_a_new_model_is_a_row_of_the_models_table(tmp_path, monkeypatch):
     """A model with its own table, excluded [plant] keys and a finish hook that reads a file
     relative to the scenario: the parser, the changeable keys, ideal, describe() and to_json()
     take it from the row alone."""
-    from wmr import plantspec
     from wmr._settings import positive
+    from wmr.robots import plantspec
 
     @plantspec.plant_table
     class Toy:

@@ -1,8 +1,8 @@
 """The sampled-data closed loop: metrics, determinism, common random numbers, plant, saturation,
 disturbance window, divergence and chunk independence.
 
-Oracles: ``wmr.metrics.rmse`` on the kept trajectory; ``kinematics.step`` applied by hand to the
-logged input; the backstepping formula; the exactness of the ZOH arc on a circle; the prefix
+Oracles: ``wmr.closedloop.metrics.rmse`` on the kept trajectory; ``kinematics.step`` applied by hand
+to the logged input; the backstepping formula; the exactness of the ZOH arc on a circle; the prefix
 property of a run cut short by divergence.
 """
 
@@ -16,10 +16,12 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from wmr import kinematics as km
-from wmr import loop, metrics, references, sim
 from wmr import scenario as scn
+from wmr.closedloop import metrics, sim
+from wmr.closedloop import step as loop
 from wmr.controllers import backstepping
+from wmr.model import kinematics as km
+from wmr.model import references
 
 ARRAYS = ("t", "q", "ref", "q_hat", "u", "state")
 
@@ -329,8 +331,8 @@ def test_extreme_valid_scenarios_emit_no_warning(changes):
 
 def test_rmse_after_transient_equals_metrics_on_the_tail_of_the_trajectory():
     """The kernel's post-transient accumulators against numpy on the kept poses t >= TRANSIENT."""
-    from wmr import metrics
     from wmr import scenario as scn_
+    from wmr.closedloop import metrics
 
     r = sim.simulate(scn_.load(scn_.builtin("lemniscate")), "backstepping", seed=2)
     tail = r.t >= metrics.TRANSIENT

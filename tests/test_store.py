@@ -11,10 +11,10 @@ import pyarrow as pa
 import pytest
 from cases import SHORT_LEMNISCATE
 
-from wmr import cli, sweep
+from wmr import cli
 from wmr import scenario as scn
 from wmr.engine import store as st
-from wmr.engine import sweeps
+from wmr.engine import sweep, sweeps
 
 SCHEMA = pa.schema([("job_id", pa.int64()), ("level", pa.string()), ("x", pa.float64()),
                     ("status", pa.string())])  # fmt: skip

@@ -15,10 +15,10 @@ import pytest
 from cases import SHORT_LEMNISCATE
 from numpy.testing import assert_allclose
 
-from wmr import cli, sweep
-from wmr.engine import batching, sweeps
+from wmr import cli
+from wmr.closedloop.sim import simulate
+from wmr.engine import batching, sweep, sweeps
 from wmr.engine.jobs import job_row
-from wmr.sim import simulate
 
 SPEC = """\
 name = "t"
@@ -172,16 +172,16 @@ def test_the_store(tmp_path):
 
 
 def test_a_run_that_raises_is_an_error_row_and_the_sweep_goes_on(tmp_path, monkeypatch):
-    import wmr.sim
+    import wmr.closedloop.sim
 
-    real = wmr.sim.simulate
+    real = wmr.closedloop.sim.simulate
 
     def flaky(sc, controller, seed, **kw):
         if controller == "adaptive-pid" and seed == 1:
             raise FloatingPointError("injected")
         return real(sc, controller, seed, **kw)
 
-    monkeypatch.setattr(wmr.sim, "simulate", flaky)
+    monkeypatch.setattr(wmr.closedloop.sim, "simulate", flaky)
     spec = sweep.load_spec(_spec(tmp_path))
     sweep.run_sweep(spec, tmp_path / "out", workers=1, progress=False)
     df = _rows(tmp_path / "out")
@@ -252,8 +252,8 @@ def test_effort_is_the_rms_of_the_command():
 def test_measures_add_their_columns(tmp_path):
     """measures = ["jacobian", "recovery"]: the Jacobian's quality (NaN for a controller with
     none) and the recovery after the first event, equal to their computation on the run."""
-    from wmr import identification as idf
-    from wmr import measures
+    from wmr.closedloop import measures
+    from wmr.estimation import identification as idf
 
     text = SPEC.replace('seeds = 2', 'seeds = 1\nmeasures = ["jacobian", "recovery"]')
     scenario = SCENARIO + "[[disturbance]]\nstart = 1.0\nstop = 1.5\nvelocity = [0.1, 0.3]\n"
@@ -283,16 +283,16 @@ def test_measures_add_their_columns(tmp_path):
 
 def _raising(monkeypatch, err, controller="adaptive-pid", seed=1):
     """Runs of ``controller`` with ``seed`` raise ``err`` (serial engine: this process)."""
-    import wmr.sim
+    import wmr.closedloop.sim
 
-    real = wmr.sim.simulate
+    real = wmr.closedloop.sim.simulate
 
     def flaky(sc, c, s, **kw):
         if c == controller and s == seed:
             raise err
         return real(sc, c, s, **kw)
 
-    monkeypatch.setattr(wmr.sim, "simulate", flaky)
+    monkeypatch.setattr(wmr.closedloop.sim, "simulate", flaky)
 
 
 def test_retry_errors_reruns_the_error_rows_once_their_cause_is_gone(tmp_path, monkeypatch,
@@ -325,9 +325,9 @@ def test_a_transient_error_that_persists_is_exit_1_one_line_and_resumes(tmp_path
     argv = ["sweep", str(path), "--out", str(out), "--workers", "1", "--batch-seconds", "1e-9"]
     calls = []
     with monkeypatch.context() as m:
-        import wmr.sim
+        import wmr.closedloop.sim
 
-        real = wmr.sim.simulate
+        real = wmr.closedloop.sim.simulate
 
         def failing(sc, c, s, **kw):
             if c == "adaptive-pid" and s == 1:
@@ -335,7 +335,7 @@ def test_a_transient_error_that_persists_is_exit_1_one_line_and_resumes(tmp_path
                 raise OSError(28, "No space left on device")
             return real(sc, c, s, **kw)
 
-        m.setattr(wmr.sim, "simulate", failing)
+        m.setattr(wmr.closedloop.sim, "simulate", failing)
         capsys.readouterr()
         assert cli.main(argv) == 1
     err = capsys.readouterr().err.strip().splitlines()[-1]

@@ -1,7 +1,8 @@
-"""Oracle tests of the sampled-data closed loops added to wmr.symbolic (PID of eq. 7, backstepping).
+"""Oracle tests of the sampled-data closed loops added to wmr.model.symbolic (PID of eq. 7,
+backstepping).
 
 Layers (STYLE 6): the symbolic one-step maps equal the library's own step (the jitted controller
-laws of ``wmr.controllers`` plus ``wmr.kinematics.step``) at seeded random states; their AD
+laws of ``wmr.controllers`` plus ``wmr.model.kinematics.step``) at seeded random states; their AD
 Jacobians equal central differences of the symbolic maps; the equilibria are exact fixed points;
 and the printed-rotation closed loop is related to the existing printed-error Jacobian by the
 change of coordinates ``N(theta)`` of errata E3.
@@ -16,11 +17,11 @@ import pytest
 from numpy.testing import assert_allclose
 from oracles import central_fd as _central_fd
 
-from wmr import kinematics as kin
 from wmr import scenario as scn
-from wmr import symbolic as sym
 from wmr.controllers import backstepping, pid
 from wmr.controllers.pid import S_INT, S_PREV, S_STARTED
+from wmr.model import kinematics as kin
+from wmr.model import symbolic as sym
 
 SEED = 20240251
 # Same arithmetic in a different order (CasADi graph vs numba): rounding of O(10) terms.

@@ -80,7 +80,7 @@ def test_settings_land_in_the_scenario_each_run_is_made_from():
     a = tuning.arm("iapid-nn-dekf", "filtered")
     u = np.linspace(0.05, 0.95, a.dim)
     vals = tuning.values_at(a, u)
-    from analysis import _regimes_design as design
+    from analysis.regimes import design
 
     sc = tuning.scenario(design.document("lemniscate"), a, tuning.settings_table(a, vals))
     st = sc.settings("iapid-nn-dekf")
@@ -106,7 +106,7 @@ def test_an_arm_tuned_through_the_engine(tmp_path):
     """BSC (3 gains) on one short training run: the tuned objective is no worse than at the
     defaults' coordinates (restart 0 starts there), the record says its budget, and the cache
     gives the same record back without running."""
-    from analysis import _regimes_design as design
+    from analysis.regimes import design
     from wmr.engine import engine
 
     training = {"t": design.training_documents(duration=6.0)["train-lemniscate@ideal"]}

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from wmr import references
 from wmr import scenario as scn
-from wmr.sim import simulate
+from wmr.closedloop.sim import simulate
+from wmr.model import references
 
 #: Spacing of the samples through which the spline is drawn [s].  A quintic spline's second
 #: derivative errs by O(h^4 f^(6)); at 0.25 s on these paths that is ~4e-8, below 1e-6.

@@ -26,15 +26,15 @@ _LAZY = {
     "builtin": ("wmr.scenario", "builtin"),
     "Scenario": ("wmr.scenario", "Scenario"),
     "ScenarioError": ("wmr.scenario", "ScenarioError"),
-    "simulate": ("wmr.sim", "simulate"),
-    "RunResult": ("wmr.result", "RunResult"),
+    "simulate": ("wmr.closedloop.sim", "simulate"),
+    "RunResult": ("wmr.closedloop.result", "RunResult"),
     "Controller": ("wmr.controllers", "Controller"),
     "PyController": ("wmr.controllers", "PyController"),
     "ControllerStopped": ("wmr.controllers", "ControllerStopped"),
     "njit": ("wmr._jit", "njit"),
-    "PyPlant": ("wmr.pyplant", "PyPlant"),
-    "Job": ("wmr.study", "Job"),
-    "run_jobs": ("wmr.study", "run_jobs"),
+    "PyPlant": ("wmr.robots.pyplant", "PyPlant"),
+    "Job": ("wmr.engine.study", "Job"),
+    "run_jobs": ("wmr.engine.study", "run_jobs"),
 }
 
 __all__ = ["__version__", *_LAZY]

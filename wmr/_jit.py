@@ -7,13 +7,13 @@ compilation only the first time.  Set ``NUMBA_DISABLE_JIT=1`` to debug them as p
 numba's cache checks only the timestamp of a function's own file, not of the jitted functions it
 calls in other modules, so a cached kernel could outlive a change to one of its callees.  Unless
 ``NUMBA_CACHE_DIR`` is set by the user, wmr's kernels therefore cache in a folder named by a hash
-of the whole package's source (:data:`CACHE_DIR`): any change to ``wmr`` starts from a fresh
-cache.  That folder is wmr's alone: a cache locator (:class:`_WmrLocator`) claims the functions
-whose source file lies inside the package and no others, so numba's settings -- and every other
-library's cache -- stay as they were (``numba.config.CACHE_DIR`` is not touched).  Kernels built
-around a law from outside the package (a plugin) carry a digest of that law's source in their
-names (``wmr.loop.law_digest``).  Nothing is pruned behind the user's back: ``wmr cache --prune``
-removes the folders of earlier versions of the source.
+of the whole package's source (:data:`CACHE_DIR`): any change to ``wmr`` starts from a fresh cache.
+That folder is wmr's alone: a cache locator (:class:`_WmrLocator`) claims the functions whose source
+file lies inside the package and no others, so numba's settings -- and every other library's cache
+-- stay as they were (``numba.config.CACHE_DIR`` is not touched).  Kernels built around a law from
+outside the package (a plugin) carry a digest of that law's source in their names
+(``wmr.closedloop.step.law_digest``).  Nothing is pruned behind the user's back: ``wmr cache
+--prune`` removes the folders of earlier versions of the source.
 """
 
 from __future__ import annotations

@@ -2,7 +2,8 @@
 
 :data:`SHARED` holds values computed from immutable parts of a scenario (its reference, plant,
 filter settings, a controller's settings) and only read by the runs that use them: the reference
-table and the plant table of ``wmr.runsetup``, the read-only parameters of the controllers' packs.
+table and the plant table of ``wmr.closedloop.runsetup``, the read-only parameters of the
+controllers' packs.
 """
 
 from __future__ import annotations

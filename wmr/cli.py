@@ -101,7 +101,7 @@ def cmd_run(args) -> int:
     import tempfile
 
     from wmr import scenario as scn
-    from wmr import sim
+    from wmr.closedloop import sim
     from wmr.io import save_figure, write_json
     from wmr.plots import tracking_figure
 
@@ -312,7 +312,7 @@ def cmd_bench(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    from wmr import sweep
+    from wmr.engine import sweep
 
     _plugins(args)
     try:
@@ -348,7 +348,7 @@ def cmd_settings(args) -> int:
 
 
 def cmd_identify(args) -> int:
-    from wmr import identify
+    from wmr.estimation import identify
     from wmr.io import atomic_write_text
 
     if args.out is not None and Path(args.out).is_dir():

@@ -8,7 +8,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from wmr import controllers
-from wmr.metrics import wrap
+from wmr.closedloop.metrics import wrap
 
 __all__ = ["robot_frame_errors", "tracking_figure", "MAX_POINTS"]
 

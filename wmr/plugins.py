@@ -10,14 +10,13 @@ registry).  Installed packages name such modules in the entry-point group :data:
 (:func:`load_entry_points`).
 
 A plugin file is imported under a name made of its stem and a digest of its content
-(``wmr_plugin_<stem>_<digest>``): the same file gets the same name on every machine, so a
-pickled setting of the plugin resolves on a worker, and an edited file is a new module (its rows
-replace the old ones).  Workers of a Dask engine get the plugins of the driver through
-:class:`WorkerLoader`: the files' contents travel with it and are written into the worker's own
-folder and imported there, so a worker whose working folder and ``sys.path`` do not contain the
-file runs it too; the scheduler gets them the same way (``wmr.engine.plugins_dask``).  A
-compiled plugin's kernel is cached under a digest of its source (``wmr.loop.law_digest``): an
-edit takes effect at the next run.
+(``wmr_plugin_<stem>_<digest>``): the same file gets the same name on every machine, so a pickled
+setting of the plugin resolves on a worker, and an edited file is a new module (its rows replace the
+old ones).  Workers of a Dask engine get the plugins of the driver through :class:`WorkerLoader`:
+the files' contents travel with it and are written into the worker's own folder and imported there,
+so a worker whose working folder and ``sys.path`` do not contain the file runs it too; the scheduler
+gets them the same way (``wmr.engine.plugins_dask``).  A compiled plugin's kernel is cached under a
+digest of its source (``wmr.closedloop.step.law_digest``): an edit takes effect at the next run.
 
 Errors are :class:`PluginError` (exit 2 at the command line, one line naming the plugin): a
 plugin that cannot be imported, has no ``CONTROLLERS``, a row that breaks the contract, or a

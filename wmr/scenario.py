@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from wmr import controllers, plantspec
+from wmr import controllers
 from wmr._settings import (
     FrozenMap,
     InputError,
@@ -31,9 +31,10 @@ from wmr._settings import (
     number,
     positive,
 )
-from wmr.kinematics import INTEGRATORS
-from wmr.plantspec import PLANT_CHANGEABLE, LaggedVelocity, Plant, PlantChange
-from wmr.references import KINDS
+from wmr.model.kinematics import INTEGRATORS
+from wmr.model.references import KINDS
+from wmr.robots import plantspec
+from wmr.robots.plantspec import PLANT_CHANGEABLE, LaggedVelocity, Plant, PlantChange
 
 __all__ = [
     "ScenarioError",

@@ -17,8 +17,10 @@ import math
 import re
 import typing
 
-from wmr import controllers, plantspec, references
+from wmr import controllers
 from wmr import scenario as scn
+from wmr.model import references
+from wmr.robots import plantspec
 
 __all__ = ["attribute_docs", "markdown"]
 

@@ -9,9 +9,9 @@
 # %%
 import dataclasses
 
-from wmr import kinematics as kin
 from wmr import scenario as scn
-from wmr.sim import simulate
+from wmr.closedloop.sim import simulate
+from wmr.model import kinematics as kin
 
 q0, u, T = np.array([0.0, 0.0, 0.3]), np.array([0.8, 0.6]), 2.0
 exact = q0.copy()

@@ -3,9 +3,9 @@
 #
 # The library's hand-derived Jacobians (ZOH step Jacobians F, G; the network's input Jacobian
 # `W diag(1 − h²) V`, errata E7; its weight Jacobian H, errata E8) are compared with CasADi's
-# algorithmic differentiation of independently written models (`wmr.symbolic`). The paper's
+# algorithmic differentiation of independently written models (`wmr.model.symbolic`). The paper's
 # printed forms go through the same check and fail it. The full study (1,000 points per check,
-# along-run points, 5 seeds per scenario) is `analysis/jacobians.py`, written to
+# along-run points, 5 seeds per scenario) is `analysis/jacobians/`, written to
 # `paper/results/jacobians.json`; here it runs at 200 points.
 #
 # Relative error: ‖A − B‖_F / max(‖B‖_F, tiny), with B the AD value.
@@ -57,11 +57,11 @@ print(f"error dynamics residual, printed matrix: median {res_p:.1f} (m/s, rad/s)
 # IAPID-NN-DEKF on the lemniscate: the Jacobian it identifies, J_NN = dt ∂NN/∂(v, w), logged
 # along the run (`run.jacobian()`), against the true ZOH Jacobian of the plant at the same step,
 # and the SGD gain-update direction g = Jᵀ T_eᵀ Γ e each produces
-# (`wmr.identification.jacobian_quality`; the true Jacobian is a callable, by default the nominal
+# (`wmr.estimation.identification.jacobian_quality`; the true Jacobian is a callable, by default the nominal
 # unicycle step's). Relative error 1 is what J = 0 scores.
 # %%
-from wmr.identification import jacobian_quality
-from wmr.sim import simulate
+from wmr.closedloop.sim import simulate
+from wmr.estimation.identification import jacobian_quality
 
 lemniscate = scn.load(scn.builtin("lemniscate"))
 run = simulate(lemniscate, "iapid-nn-dekf", seed=0)

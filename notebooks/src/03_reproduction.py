@@ -9,9 +9,9 @@
 # %%
 from wmr import controllers
 from wmr import scenario as scn
+from wmr.closedloop.sim import simulate
+from wmr.engine.study import Job, run_jobs
 from wmr.plots import tracking_figure
-from wmr.sim import simulate
-from wmr.study import Job, run_jobs
 
 SEEDS = 5
 scenarios = {n: scn.load(scn.builtin(n)) for n in scn.PAPER_SCENARIOS}
@@ -41,7 +41,7 @@ fig = tracking_figure(runs, title="sinusoid with perturbation (15–20 s), seed 
 # read per step, so the SGD step is ~ μ dt e φ) the gains move little over 40 s; whether APID,
 # IAPID-NN-DEKF and the fixed PID are then "the same" is a statistical question: a paired TOST
 # at a margin of 1 mm on the position RMSE (`wmr.stats.tost`; the report's verdict does it over
-# 20 seeds). Away from these defaults see the regime study (`analysis/regimes.py`).
+# 20 seeds). Away from these defaults see the regime study (`analysis/regimes/`).
 # %%
 from wmr import stats
 

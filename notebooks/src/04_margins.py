@@ -2,23 +2,23 @@
 # # 04 — Stability margins of the linearised loops
 #
 # About perfect tracking of a reference with constant `(v_r, w_r)`, the sampled error dynamics
-# are linearised with CasADi's exact Jacobians (`wmr.symbolic`), the PID of eq. (7) becomes a
+# are linearised with CasADi's exact Jacobians (`wmr.model.symbolic`), the PID of eq. (7) becomes a
 # discrete LTI controller, and python-control gives the loops at `dt`. Margins are
 # **loop-at-a-time**: broken at the plant input `v` with the `w` loop closed, and vice versa.
-# The loops are built by `wmr.loops`, their margins computed by `wmr.margins`. The full study
+# The loops are built by `wmr.linear.loops`, their margins computed by `wmr.linear.margins`. The full study
 # (more operating points, all runs, the printed rotation, every cross-check) is
-# `analysis/margins.py`, which writes `paper/results/margins.json`.
+# `analysis/margins/`, which writes `paper/results/margins.json`.
 #
 # In the report: [Linearised loops: margins (python-control)](../paper/report.md#linearised-loops-margins-python-control).
 # %%
 from IPython.display import display
 
 from analysis import margins as study
-from wmr import loops as lp
-from wmr import margins as mg
 from wmr import scenario as scn
+from wmr.closedloop.sim import simulate
 from wmr.controllers.pid import GAIN_NAMES
-from wmr.sim import simulate
+from wmr.linear import loops as lp
+from wmr.linear import margins as mg
 
 
 def show(fig):
@@ -64,7 +64,7 @@ for name, loops in (("PID", lp.pid_loops(op)), ("BSC", lp.backstepping_loops(op)
         print(f"{name} {ch}: frequency-domain and eigenvalue margins agree: {agree}; "
               f"disk margins below classical: {m.disk_phase_margin_deg <= m.phase_margin_deg}")
 # %% [md]
-# **Eigenvalues vs the simulator.** The nonlinear loop (`wmr.sim.simulate`, no noise), started
+# **Eigenvalues vs the simulator.** The nonlinear loop (`wmr.closedloop.sim.simulate`, no noise), started
 # at a 1 mm / 1 mrad error that excites the slowest mode, decays at the rate of the slowest
 # closed-loop eigenvalue. (The PID run uses the feed-forward so that the simulator's zero initial
 # integrals are the equilibrium; the linearisation is the same with or without it.)

@@ -4,7 +4,7 @@
 # The paper's stability section (§3.4, a copy of Reif et al. 1999) bounds the *weight-estimation
 # error* of the network's EKF if Assumption 1's constants exist. Here they are measured along a
 # short IAPID-NN-DEKF run (every 10th filter step instrumented) by running the simulator with a
-# probe (`simulate(..., probe=wmr.probes.WeightProbe(...))`): the same phases as its compiled
+# probe (`simulate(..., probe=wmr.closedloop.probes.WeightProbe(...))`): the same phases as its compiled
 # kernel, step by step, with hooks around the controller law. The full study (every step,
 # 3 scenarios, 50 Monte-Carlo seeds for the pose EKF) is `wmr analyze boundedness`; its numbers
 # are in `paper/report.md`.
@@ -15,7 +15,7 @@ import dataclasses
 
 from analysis import boundedness as bd
 from wmr import scenario as scn
-from wmr import stability
+from wmr.estimation import stability
 
 sc = scn.load(scn.builtin("sinusoid"))
 sc = dataclasses.replace(sc, duration=10.0)

@@ -14,9 +14,9 @@
 import json
 from pathlib import Path
 
-from analysis import _regimes_design as design
-from analysis import _regimes_stats as rstats
 from analysis import tuning
+from analysis.regimes import design
+from analysis.regimes import stats as rstats
 from wmr import controllers
 from wmr.engine import Job, run_job
 

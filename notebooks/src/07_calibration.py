@@ -2,7 +2,7 @@
 # # 07 — Could any setting give the paper's tables? A rule with measured coverage
 #
 # The paper leaves dt, the run length, the trajectories, the gains, the noise and the nature of
-# its perturbation unsaid. `analysis/calibration.py` writes those settings down as a prior (each
+# its perturbation unsaid. `analysis/calibration/` writes those settings down as a prior (each
 # range with where it comes from), screens them (Morris), runs a scrambled Sobol design through
 # the engine, and judges candidate settings against the 36 numbers of Tables 1–3 with a
 # **rule whose coverage and power are measured on planted truths**. The earlier record's
@@ -14,10 +14,10 @@
 import json
 from pathlib import Path
 
-from analysis import _calibration_prior as prior
 from analysis import calibration
+from analysis.calibration import prior
 
-ROOT = Path(calibration.__file__).resolve().parent.parent  # the repository
+ROOT = Path(calibration.__file__).resolve().parents[2]  # the repository
 record = json.loads((ROOT / "paper" / "results" / "calibration.json").read_text())
 calibration.check(record)
 print("level:", record["level"], "| design points:", record["points"]["n"],
@@ -54,7 +54,7 @@ print("too loose to decide at 0.3:", pl["too_loose"], f"(at the verdict's discre
 for dl, x in pl["by_delta"].items():  # the same planted runs, scored at each discrepancy
     print(f"  discrepancy {dl}: coverage {ci(x['coverage'])}, ruled out at 0.3: {ci(x['power']['0.3'])}")
 # %%
-from analysis import _calibration_figures as figures
+from analysis.calibration import figures
 
 fig = figures.power_curve(record)
 # %% [md]
@@ -83,7 +83,7 @@ for name, r in worst:
 # seed 0 gives the record's numbers exactly (the record was made on this machine):
 # %%
 from wmr import scenario as scn
-from wmr.sim import simulate
+from wmr.closedloop.sim import simulate
 
 ours = []
 for f in fit["scenario_files"]:

@@ -27,7 +27,7 @@ for mu in (0.1, 1.0):
 #
 # Backstepping on the paper's lemniscate, seed 0, the position RMSE after the 5 s transient.
 # %%
-from wmr.sim import simulate
+from wmr.closedloop.sim import simulate
 
 paths = {}
 for rung in ("kinematic", "lagged-velocity", "mujoco"):

@@ -7,7 +7,7 @@ A controller is a pure jitted law plus explicit state (STYLE §7)::
 ``p`` are its frozen parameters (a namedtuple or float vector), ``s`` its small mutable state
 (integrals, gains, previous signals...), ``theta`` and ``P`` its flat network weight vector and
 that vector's covariance (empty for controllers without a network); it writes the input
-``(v, w)`` into ``u``.  The loop (``wmr.loop``) owns and advances them.
+``(v, w)`` into ``u``.  The loop (``wmr.closedloop.step``) owns and advances them.
 
 The contract of a controller module, one row of :data:`REGISTRY` each (a test runs over every
 row, ``tests/test_registry.py``):

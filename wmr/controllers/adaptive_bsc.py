@@ -13,7 +13,7 @@ equivalence, the backstepping input ``u* = (v*, w*)`` of ``wmr.controllers.backs
     v* = v_r cos e3 + k1 e1,   w* = w_r + v_r (k2 e2 + k3 sin e3),
     u_c = G^^-1 u*,   G^ = [[a^, b^], [d^, c^]]                                               (A2)
 
-with ``e = T_e(theta)(q_r - q)`` of eq. (6), corrected rotation (``wmr.kinematics``).
+with ``e = T_e(theta)(q_r - q)`` of eq. (6), corrected rotation (``wmr.model.kinematics``).
 
 **Tracking-error part** (the classical adaptive tracker; Fukao, Nakagawa & Adachi, IEEE T-RA
 16(5), 2000, Sec. III, adapt the wheel radius and axle length the same way; the equations here
@@ -92,7 +92,7 @@ import numpy as np
 from wmr._jit import njit
 from wmr._settings import check
 from wmr.controllers import backstepping
-from wmr.kinematics import sinc_and_derivative, tracking_error, wrap_angle
+from wmr.model.kinematics import sinc_and_derivative, tracking_error, wrap_angle
 
 __all__ = ["Settings", "State", "STATE_NAMES", "ESTIMATE_NAMES", "GAIN_NAMES", "pack",
            "final_state", "law", "lyapunov"]

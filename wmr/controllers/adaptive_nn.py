@@ -18,14 +18,14 @@ error and the reference velocities at ``t_{k-1}``; not the measured velocity, no
 accelerations); its output is an additive correction ``z = NN_c(phi)`` of the velocity command
 ``(v, w)``; its target, through the EKF, is the correction ``dz`` that would have removed the
 one-step tracking error through the *nominal* unicycle, ``q_r,k - q_hat_k ~ G_{k-1} dz``
-(``G = dq_{k+1}/du_k`` of the kinematic ZOH step, ``wmr.kinematics.step_jacobians``).  So it
+(``G = dq_{k+1}/du_k`` of the kinematic ZOH step, ``wmr.model.kinematics.step_jacobians``).  So it
 compensates the error the base backstepping law leaves, as a static function of
 ``(e, v_r, w_r)``, assuming a command changes the pose within one step as the kinematic model
 says.
 
-On the dynamic plant (``model = "dynamic"``, ``wmr.plant``) the command ``a`` is a set-point of
-an inner velocity loop: per channel ``mass v' = nominal_mass bw (a - v) - f v``, a first-order lag
-with time constant ``tau = mass / (nominal_mass bw + f)`` and static gain
+On the dynamic plant (``model = "dynamic"``, ``wmr.robots.plant``) the command ``a`` is a set-point
+of an inner velocity loop: per channel ``mass v' = nominal_mass bw (a - v) - f v``, a first-order
+lag with time constant ``tau = mass / (nominal_mass bw + f)`` and static gain
 ``g = nominal_mass bw / (nominal_mass bw + f)`` (likewise ``w`` with the inertia).  Hence:
 
 - the command's effect within one step is ``d(int_0^dt v)/da = g (dt - tau (1 - exp(-dt/tau)))
@@ -58,13 +58,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wmr import nn
 from wmr._jit import njit
 from wmr._settings import check, positive
 from wmr._shared import SHARED
 from wmr.controllers import backstepping
-from wmr.ekf import repair_covariance, weight_update
-from wmr.kinematics import INTEGRATORS, step_jacobians_into, tracking_error_parts, wrap_angle
+from wmr.estimation import nn
+from wmr.estimation.ekf import repair_covariance, weight_update
+from wmr.model.kinematics import INTEGRATORS, step_jacobians_into, tracking_error_parts, wrap_angle
 
 __all__ = ["Settings", "State", "STATE_NAMES", "pack", "final_state", "law"]
 
@@ -145,7 +145,7 @@ class State:
     Attributes
     ----------
     theta : ndarray, shape (n,)
-        The compensator's flat weight vector (``wmr.nn`` layout).
+        The compensator's flat weight vector (``wmr.estimation.nn`` layout).
     P : ndarray, shape (n, n)
         Its covariance in the weight EKF.
     nn_output : ndarray, shape (2,)

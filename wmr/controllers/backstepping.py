@@ -19,7 +19,7 @@ import numpy as np
 
 from wmr._jit import njit
 from wmr._settings import check
-from wmr.kinematics import tracking_error_parts
+from wmr.model.kinematics import tracking_error_parts
 
 __all__ = ["Settings", "State", "STATE_NAMES", "pack", "final_state", "law", "command"]
 

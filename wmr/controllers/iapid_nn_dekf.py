@@ -24,13 +24,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wmr import nn
 from wmr._jit import njit
 from wmr._settings import check, positive
 from wmr.controllers import pid
 from wmr.controllers.pid import S_NN_ERR, S_Q, S_REPAIRS, S_STARTED, S_U
-from wmr.ekf import repair_covariance, weight_update
-from wmr.kinematics import tracking_error_parts, wrap_angle
+from wmr.estimation import nn
+from wmr.estimation.ekf import repair_covariance, weight_update
+from wmr.model.kinematics import tracking_error_parts, wrap_angle
 
 __all__ = ["Settings", "State", "STATE_NAMES", "N_IN", "pack", "pack_oracle", "final_state", "law",
            "identifier_input", "identifier_input_into"]
@@ -116,7 +116,7 @@ class State(pid.State):
     Attributes
     ----------
     theta : ndarray, shape (n,)
-        The identifier's flat weight vector (``wmr.nn`` layout).
+        The identifier's flat weight vector (``wmr.estimation.nn`` layout).
     P : ndarray, shape (n, n)
         Its covariance in the weight filter.
     nn_error : float
@@ -156,7 +156,7 @@ def identifier_input_into(u, theta, x):
 
 # The run's scratch (``Params.scratch``, overwritten by each step): after the PID family's own
 # entries, the identifier's input, output, hidden activations, innovation, input Jacobian and the
-# weight filter's small matrices (wmr.ekf.joseph_update).
+# weight filter's small matrices (wmr.estimation.ekf.joseph_update).
 _X = pid.SCRATCH
 _Z = _X + N_IN
 _HID = _Z + N_OUT

@@ -11,9 +11,9 @@ the prediction step ``h = m dt``, ``m`` a whole number)::
     s.t.  q_0 = q_hat_k,   q_{j+1} = step(q_j, u_j, h),   |v_j| <= v_max,  |w_j| <= w_max   (M2)
 
 with ``c_j = 1`` and ``c_N = terminal_weight``; the reference rows are those of the scenario's
-reference at ``t_k + j h`` (``wmr.references.ReferenceSampler``, the sampler the loop reads),
+reference at ``t_k + j h`` (``wmr.model.references.ReferenceSampler``, the sampler the loop reads),
 ``step`` the nominal model's zero-order-hold step with the scenario's integrator
-(``wmr.symbolic.step_function``; the exact arc by default).  The heading term is the wrapped
+(``wmr.model.symbolic.step_function``; the exact arc by default).  The heading term is the wrapped
 error: ``2 (1 - cos d) = sin(d)^2 + (1 - cos d)^2`` is smooth, 2 pi-periodic and ``d^2 + O(d^4)``,
 so a robot a turn away from the reference's unwrapped heading is not penalised for the turn.
 The cost is a sum of squared residuals ``r(U)^T r(U)``: the solvers use its Gauss-Newton Hessian
@@ -70,7 +70,7 @@ import numpy as np
 
 from wmr._settings import SettingError, check
 from wmr.controllers.stopped import ControllerStopped
-from wmr.references import ReferenceSampler
+from wmr.model.references import ReferenceSampler
 
 __all__ = ["Settings", "SOLVERS", "ControllerStopped", "Problem", "problem", "shift", "NMPC",
            "make", "STATE_NAMES", "box_qp", "JacobianBuffer", "SolveRecord", "TimeHistogram"]
@@ -290,7 +290,7 @@ def _residual(horizon: int, integrator: str):
     """``(x, p, r)`` symbols of (M1)-(M2) in least-squares form."""
     import casadi as ca
 
-    from wmr.symbolic import step_function
+    from wmr.model.symbolic import step_function
 
     n = horizon
     x = ca.SX.sym("U", 2 * n)
@@ -324,9 +324,9 @@ def problem(horizon: int, integrator: str = "exact", solver: str = "rti",
             tolerance: float = 1e-10, max_iterations: int = 1) -> Problem:
     """The :class:`Problem` of this structure, built on first use and cached for the process
     (``max_iterations``: the iteration limit of ``"sqp"`` and ``"ipopt"``, the number of
-    Gauss-Newton steps of ``"rti"``).  CasADi and ``wmr.symbolic`` are imported here, on first
+    Gauss-Newton steps of ``"rti"``).  CasADi and ``wmr.model.symbolic`` are imported here, on first
     use, not with the module: importing any ``wmr`` module loads neither
-    (``tests/test_symbolic.py``), and only a run of ``nmpc`` does (``wmr.symbolic``'s
+    (``tests/test_symbolic.py``), and only a run of ``nmpc`` does (``wmr.model.symbolic``'s
     docstring)."""
     import casadi as ca
 

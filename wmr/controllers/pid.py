@@ -38,7 +38,7 @@ import numpy as np
 from wmr._jit import njit
 from wmr._settings import check
 from wmr._shared import SHARED
-from wmr.kinematics import INTEGRATORS, step_jacobians_into, tracking_error_parts
+from wmr.model.kinematics import INTEGRATORS, step_jacobians_into, tracking_error_parts
 
 __all__ = [
     "Settings",
@@ -137,7 +137,7 @@ class Settings:
         Clamp of each gain during adaptation (errata E5d).  Not in the paper.  ``Kd <= 0.5``: noise
         on the measured pose drives the derivative gains up (DESIGN §5), and the linearised loop
         at the default gains is unstable beyond ``Kdv ~ 0.98``, ``Kdw ~ 0.95``
-        (``analysis/margins.py``); 0.5 keeps a factor of ~2 of margin.
+        (``analysis/margins/``); 0.5 keeps a factor of ~2 of margin.
     feed_forward : bool [-]
         Add ``(v_r cos e3, w_r)`` to eq. 7 (not in the paper).
     printed_rotation : bool [-]
@@ -268,7 +268,7 @@ def pid_output(p, s, e, ref, dt, u):
     """Eq. (7): update integrals/derivatives in ``s``, write ``u``, store the regressor of eq. (15).
 
     ``e`` is the error of eq. (6), an array (3,) or the tuple of
-    ``wmr.kinematics.tracking_error_parts`` (the laws' allocation-free form).
+    ``wmr.model.kinematics.tracking_error_parts`` (the laws' allocation-free form).
 
     The regressor ``dU/dK = [[e1, I[e1], D[e1], 0, 0, 0], [0, 0, 0, s, I[s], D[s]]]`` is kept in
     ``s[S_PHI:S_PHI+6]`` as ``(e1, I[e1], D[e1], s, I[s], D[s])`` for the next SGD step.
@@ -383,8 +383,9 @@ def sgd_gain_step(p, s, J, e, theta, h):
         ``h`` skips the term, so the exact gradient with ``alpha1 = alpha2`` is the approximate
         one bit for bit.
     """
-    # T_e^T Gamma e with T_e = [[c, sn, 0], [+-sn, c, 0], [0, 0, 1]] (wmr.kinematics.rotation),
-    # written out with every term of the 3 x 3 product (no allocation, no BLAS call)
+    # T_e^T Gamma e with T_e = [[c, sn, 0], [+-sn, c, 0], [0, 0, 1]]
+    # (wmr.model.kinematics.rotation), written out with every term of the 3 x 3 product (no
+    # allocation, no BLAS call)
     c = math.cos(theta)
     sn = math.sin(theta)
     t10 = sn if p.printed_rotation else -sn

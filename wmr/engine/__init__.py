@@ -9,10 +9,11 @@
 ``wmr.engine.driver``     ``execute``: the loop every driver of many runs uses
 ``wmr.engine.progress``   the progress bar / lines
 ``wmr.engine.cluster``    ``LoopbackCluster``: a scheduler and workers as separate programs
-``wmr.engine.sweeps``     a sweep spec (``wmr.sweep``) run into its store (``wmr sweep``)
+``wmr.engine.sweeps``     a sweep spec (``wmr.engine.sweep``) run into its store (``wmr sweep``)
 ========================  =========================================================================
 
-``wmr.study`` keeps the names of the earlier single module (``Job``, ``run_jobs``, ``engine``,
+``wmr.engine.study`` keeps the names of the earlier single module (``Job``, ``run_jobs``,
+``engine``,
 ``Engine.map_batches``, ``Engine.run_everywhere``, ``LoopbackCluster``...).  Importing this
 package imports none of its modules; the names below load theirs on first use.
 """

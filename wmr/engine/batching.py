@@ -26,7 +26,7 @@ def step_costs(pairs: Iterable) -> dict[tuple[str, bool], float]:
     """Seconds per step of each ``(scenario, controller)`` on this machine, keyed by
     ``(controller, plant is ideal)``: a run of at most :data:`COST_STEPS` steps each (after the
     warm-up, so no compilation is timed)."""
-    from wmr.sim import simulate
+    from wmr.closedloop.sim import simulate
 
     out: dict = {}
     for sc, controller in pairs:

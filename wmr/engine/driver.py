@@ -1,6 +1,6 @@
 """The one loop that runs many jobs: warm-up, batches, the engine, the store's flushes, progress.
 
-:func:`execute` serves every driver of many runs: ``wmr.study.run_jobs`` (results in job
+:func:`execute` serves every driver of many runs: ``wmr.engine.study.run_jobs`` (results in job
 order), ``wmr sweep`` and the calibration (rows into a ``wmr.engine.store.ShardStore``) and the
 studies.  On a parallel engine it first loads every kernel the jobs need in every worker
 (``wmr.engine.jobs.warm_up``: numba's machine code is not pickled; workers load it from the

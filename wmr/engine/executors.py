@@ -43,7 +43,7 @@ WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THRE
 #: The rest quiets the machinery's own clocks, which a batch sweep does not need: the workers'
 #: statistical profiler (a stack sample every 10 ms), the event-loop health tick (20 ms), the
 #: system and memory monitors (0.5 s, 0.1 s).  Measured on an idle 2-worker cluster: 9 % of a
-#: core with Dask's defaults, 1.5 % with these (``analysis._sweep_bench.idle_cost``), capacity
+#: core with Dask's defaults, 1.5 % with these (``analysis.performance.sweep.idle_cost``), capacity
 #: that a machine of two cores gives back to the runs.
 LOCAL_CLUSTER_CONFIG = {
     "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,

@@ -3,10 +3,10 @@
 A :class:`Job` is one closed-loop run: ``controller`` on ``scenario`` with ``settings`` (None:
 the scenario's) and ``seed``, plus what its row carries besides the run (``job_id``, the
 ``labels`` of a sweep's design point or of a calibration task, the ``measures`` to take).
-Every driver of many runs (``wmr.study.run_jobs``, ``wmr sweep``, the calibration, the studies)
-builds jobs of this type and runs them on the one engine (``wmr.engine.driver.execute``).
+Every driver of many runs (``wmr.engine.study.run_jobs``, ``wmr sweep``, the calibration, the
+studies) builds jobs of this type and runs them on the one engine (``wmr.engine.driver.execute``).
 
-The run-to-row mapping is ``wmr.result.Row.of`` (the run's RMSEs, after-transient RMSEs,
+The run-to-row mapping is ``wmr.closedloop.result.Row.of`` (the run's RMSEs, after-transient RMSEs,
 effort and divergence); :func:`run_job` returns that ``Row``, :func:`job_row` the store's row:
 the job's columns, the ``Row``'s result fields (:data:`RESULT_FIELDS`), the measures and
 ``status``/``error``.  A run that raises a non-transient exception gives an error row
@@ -22,14 +22,14 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
+from wmr.closedloop.result import Row
 from wmr.engine.faults import describe, is_transient
-from wmr.result import Row
 from wmr.scenario import Scenario
 
 __all__ = ["Job", "RESULT_FIELDS", "COLUMNS", "COLUMN_TYPES", "OK", "ERROR", "run_job",
            "job_row", "result_columns", "measure_columns", "kernel_pairs", "warm_up"]  # fmt: skip
 
-#: The fields of ``wmr.result.Row`` that describe the run's outcome (not the job).
+#: The fields of ``wmr.closedloop.result.Row`` that describe the run's outcome (not the job).
 RESULT_FIELDS = ("rmse_x", "rmse_y", "rmse_theta", "rmse_position", "tail_x", "tail_y",
                  "tail_theta", "tail_position", "effort", "diverged", "diverged_at", "cause")
 #: Result columns of a store's row, in the order of DESIGN §3.5.
@@ -54,11 +54,11 @@ class Job:
     scenario, controller, seed
         The run: ``controller`` (a registry name) on ``scenario`` with noise seed ``seed``.
     variant : str
-        The row's variant label (``wmr.result.Row.variant``).
+        The row's variant label (``wmr.closedloop.result.Row.variant``).
     settings
         The controller's settings (None: the scenario's).
     measures : tuple of str
-        ``wmr.measures.MEASURES`` to take on the run (their columns join the row).
+        ``wmr.closedloop.measures.MEASURES`` to take on the run (their columns join the row).
     job_id : int or str or None
         The row's identity in a store (a newer row of the same ``job_id`` supersedes it).
     labels : tuple of (str, value)
@@ -77,15 +77,15 @@ class Job:
 
 
 def _simulate(job: Job, keep_trajectory: bool):
-    from wmr.sim import simulate  # looked up at call time (tests replace it)
+    from wmr.closedloop.sim import simulate  # looked up at call time (tests replace it)
 
     return simulate(job.scenario, job.controller, job.seed, settings=job.settings,
                     keep_trajectory=keep_trajectory)  # fmt: skip
 
 
 def run_job(job: Job) -> Row:
-    """Run one job (no trajectory kept) and summarise it: ``wmr.result.Row.of``.  Whatever the
-    run raises propagates."""
+    """Run one job (no trajectory kept) and summarise it: ``wmr.closedloop.result.Row.of``.
+    Whatever the run raises propagates."""
     return Row.of(_simulate(job, keep_trajectory=False), job.variant)
 
 
@@ -95,8 +95,8 @@ def result_columns(row: Row) -> dict:
 
 
 def measure_columns(names: Iterable[str]) -> tuple[str, ...]:
-    """Columns the measures ``names`` add to a row (``wmr.measures``)."""
-    from wmr.measures import MEASURES
+    """Columns the measures ``names`` add to a row (``wmr.closedloop.measures``)."""
+    from wmr.closedloop.measures import MEASURES
 
     return tuple(c for n in names for c in MEASURES[n].columns)
 
@@ -113,7 +113,7 @@ def job_row(job: Job) -> dict:
         r = _simulate(job, keep_trajectory=bool(job.measures))
         extra: Mapping = {}
         if job.measures:
-            from wmr.measures import measure
+            from wmr.closedloop.measures import measure
 
             extra = measure(job.measures, r, job.scenario)
         result = result_columns(Row.of(r, job.variant))
@@ -141,7 +141,7 @@ def kernel_pairs(jobs: Iterable[Job]) -> dict[tuple[str, bool], tuple[Scenario, 
 def warm_up(pairs: Iterable[tuple[Scenario, str]]) -> None:
     """Compile (or load from the disk cache) the loop kernel of each (scenario, controller):
     a one-step run each, so that workers only ever read the cache."""
-    from wmr.sim import simulate
+    from wmr.closedloop.sim import simulate
 
     seen = set()
     for sc, controller in pairs:

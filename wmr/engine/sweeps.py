@@ -1,4 +1,5 @@
-"""A sweep spec (``wmr.sweep``) run on the engine into its store (``wmr sweep``, DESIGN §3.5).
+"""A sweep spec (``wmr.engine.sweep``) run on the engine into its store (``wmr sweep``, DESIGN
+§3.5).
 
 The store (``wmr.engine.store.ShardStore``) is the sweep's folder: ``spec.toml`` (a copy),
 ``manifest.json`` and ``rows/part-*.parquet``, with the columns of :func:`schema`.  Its digests
@@ -20,7 +21,7 @@ from pathlib import Path
 
 from wmr.engine.jobs import COLUMN_TYPES, COLUMNS, job_row, measure_columns
 from wmr.engine.store import ShardStore
-from wmr.sweep import Factor, Spec, SweepError, jobs, summarise
+from wmr.engine.sweep import Factor, Spec, SweepError, jobs, summarise
 
 __all__ = ["KIND", "schema", "code_digest", "digests", "open_store", "check_out", "run_sweep",
            "read_rows", "finished_jobs", "error_jobs", "write_shard"]  # fmt: skip
@@ -122,8 +123,8 @@ def run_sweep(spec: Spec, out: str | Path, *, workers: int | None = None,
     here, N = a local Dask cluster of N processes, or the cluster at ``scheduler``).  Jobs with a
     row in ``out/rows`` are skipped (with ``retry_errors``, those whose row is an error are run
     again); completed rows are written as a new shard at least every ``flush_seconds``, so an
-    interruption, even SIGKILL, loses at most that much work.  ``stale``: ``"refuse"`` a
-    different spec in a non-empty ``out`` (:class:`~wmr.sweep.SweepError`) or ``"set-aside"``.
+    interruption, even SIGKILL, loses at most that much work.  ``stale``: ``"refuse"`` a different
+    spec in a non-empty ``out`` (:class:`~wmr.engine.sweep.SweepError`) or ``"set-aside"``.
     ``fn`` maps a job to its row (``wmr.engine.jobs.job_row``; a wrapper of it in tests).
     ``eng``: an engine already running to use instead (left running).
 

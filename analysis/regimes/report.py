@@ -1,0 +1,488 @@
+"""The regime study's verdicts, prose, table and figure, from its record only (issue 22 item 7).
+
+A mechanism's verdict on a contrast ``a - b`` (tuned settings, the model's estimate averaged
+per pose source, as the ratio of the both-stable RMSEs ``exp(log r_a - log r_b)``):
+
+On each pose source (the model's cell estimate):
+
+- ``"withheld"`` (tuned settings only): either arm's two tuning restarts disagree (the tuned
+  contrast would measure how well each arm's tuning went, not the arms), or the mechanism is a
+  MuJoCo robot (the arms were tuned on kinematic training plants, the PID family's tuned gains
+  do not track there, and the 2 ms physics step is not converged: the robot ladder's audit);
+- ``"costs (divergence)"``: ``a`` diverges significantly more often than ``b`` (exact McNemar at
+  0.05); ``"pays (divergence)"``: ``b`` does;
+- ``"same within 5 %"``: else, the 95 % interval of the ratio lies inside ``[1/1.05, 1.05]``
+  (a difference that exists but is smaller than the margin is "the same" in practice);
+- ``"pays"``: else, the interval lies below 1; ``"costs"``: above 1;
+- ``"undecided"``: otherwise, or fewer than ``MIN_PAIRS`` = 6 both-stable pairs.
+
+The mechanism's verdict is the pose sources' common word, else "depends on the pose source".
+The same rule at the shared default settings (no tuning: nothing withheld for it) is the
+``"default"`` verdict beside each tuned one; for IAPID - APID it is the verdict on the
+identifier itself (the arms then differ only in the Jacobian).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from analysis import common
+from wmr import controllers
+
+__all__ = ["verdicts", "classify", "notes", "table", "figure"]
+
+KEY = "best-adaptive - best-fixed"
+#: Fewest both-stable pairs behind a verdict (fewer: "undecided"; a cell's interval from the
+#: model's pooled clusters is not evidence about two or three pairs).
+MIN_PAIRS = 6
+IA = "iapid-nn-dekf - adaptive-pid"
+
+
+def _div(c: dict, mech: str, pose: str, setting: str = "tuned") -> int:
+    """+1 when a diverges significantly more often than b on ``mech`` and ``pose`` (exact
+    McNemar at 0.05), -1 when b does, 0 otherwise."""
+    d = c[setting][pose].get(mech, {}).get("divergence")
+    if not (d and d["p"] < 0.05):
+        return 0
+    return 1 if d["a_only"] > d["b_only"] else -1 if d["b_only"] > d["a_only"] else 0
+
+
+def _div_worse(c: dict, mech: str, pose: str) -> bool:
+    """Whether a diverges significantly more often than b on ``mech`` and ``pose`` (tuned)."""
+    return _div(c, mech, pose) > 0
+
+
+def classify(est: dict | None, div_worse, margin: float = 0.05) -> str:
+    """The verdict word (see the module) from the model's estimate ``est`` (``ratio_ci``) and
+    the paired divergence (``div_worse``: +1 / True a diverges more, -1 b does, 0 / False)."""
+    if div_worse is True or div_worse == 1:
+        return "costs (divergence)"
+    if div_worse == -1:
+        return "pays (divergence)"
+    if est is None or est["n"] < MIN_PAIRS:
+        return "undecided"
+    lo, hi = est["ratio_ci"]
+    if lo > 1 / (1 + margin) and hi < 1 + margin:
+        return "same within 5 %"
+    if hi < 1.0:
+        return "pays"
+    if lo > 1.0:
+        return "costs"
+    return "undecided"
+
+
+def _one(est: dict | None, worse, withheld: str | None = None) -> dict:
+    return {"verdict": "withheld" if withheld else classify(est, worse),
+            "withheld": withheld, "diverges_more": worse == 1 or worse is True,
+            "ratio": None if est is None else est["ratio"],
+            "ratio_ci": None if est is None else est["ratio_ci"],
+            "n_stable": 0 if est is None else est["n"]}  # fmt: skip
+
+
+def _arms_of(record: dict, name: str, pose: str) -> tuple[str, str]:
+    if name == KEY:
+        b = record["best"][pose]
+        return b["best-adaptive"], b["best-fixed"]
+    a, b = name.split(" - ")
+    return a, b
+
+
+def _withheld(record: dict, name: str, mech: str, pose: str) -> str | None:
+    """Why the tuned verdict of ``name`` on ``mech`` / ``pose`` is withheld (None: it is not)."""
+    if mech in record["design"].get("mujoco", ()):
+        return "MuJoCo: tuned on kinematic plants; 2 ms physics not converged"
+    arms = record["tuning"]["arms"][pose]
+    bad = [a for a in _arms_of(record, name, pose)
+           if a in arms and not arms[a]["agreement"]["agree"]]  # fmt: skip
+    return f"tuning restarts disagree ({', '.join(bad)})" if bad else None
+
+
+def _combine(poses: dict, mean: dict) -> dict:
+    words = {v["verdict"] for v in poses.values()}
+    mean["verdict"] = words.pop() if len(words) == 1 else "depends on the pose source"
+    mean["diverges_more"] = any(v["diverges_more"] for v in poses.values())
+    return {**mean, "poses": poses}
+
+
+def verdicts(record: dict) -> dict:
+    """Per mechanism and contrast: the verdict on each pose source (the model's cell estimate
+    and that pose's McNemar), and the mechanism's: the common word when both pose sources agree,
+    else "depends on the pose source"; beside it the ratio averaged over the pose sources; and
+    the same at the shared defaults (``"default"``)."""
+    out: dict = {"rule": __doc__.split("\n\n", 1)[1].strip(), "mechanisms": {}}
+    for m in record["mechanisms"]:
+        out["mechanisms"][m] = {}
+        for name, c in record["contrasts"].items():
+            model = c["tuned"]["model"] or {"cells": {}, "mechanisms": {}}
+            poses = {p: _one(model["cells"].get(m, {}).get(p), _div(c, m, p),
+                             _withheld(record, name, m, p)) for p in record["poses"]}
+            entry = _combine(poses, _one(model["mechanisms"].get(m), 0))
+            dm = (c.get("default") or {}).get("model")
+            if dm and m in dm.get("cells", {}):
+                dp = {p: _one(dm["cells"][m].get(p), _div(c, m, p, "default"))
+                      for p in record["poses"] if p in c["default"]}  # fmt: skip
+                entry["default"] = _combine(dp, _one(dm.get("mechanisms", {}).get(m), 0))
+            out["mechanisms"][m][name] = entry
+    return out
+
+
+def _r(v: dict) -> str:
+    if v["ratio"] is None:
+        return "no stable pairs"
+    lo, hi = v["ratio_ci"]
+    return f"{v['ratio']:.3f} [{lo:.3f}, {hi:.3f}], n = {v['n_stable']}"
+
+
+def _lbl(c: str) -> str:
+    return controllers.label(c)
+
+
+def notes(record: dict) -> str:
+    """The section's text, all from the record: the answer first, in short sentences (DESIGN
+    §7.8), then the details, their numbers in tables (Markdown; ``analysis.prose``'s rule)."""
+    blocks = [*_answer(record), _reading(), _defaults(record), _coverage(record),
+              _tracking(record), *_per_pose(record), _interactions(record), _tuning(record),
+              _extra(record), _recovery(record), _cost(record)]  # fmt: skip
+    return "\n\n".join(b for b in blocks if b)
+
+
+def _answer(record: dict) -> list[str]:
+    """The answer (at most six short sentences) and the study's scope (three more)."""
+    v = record["verdict"]["mechanisms"]
+    words = ("pays", "pays (divergence)", "costs", "costs (divergence)", "same within 5 %",
+             "undecided", "depends on the pose source", "withheld")  # fmt: skip
+
+    def at_defaults(name: str) -> dict:
+        return {w: [m for m in v if v[m][name].get("default", {}).get("verdict") == w]
+                for w in words}  # fmt: skip
+
+    def said(by: dict) -> str:
+        return "; ".join(f"{w} on {', '.join(ms)}" for w, ms in by.items() if ms) or "none"
+
+    best = record["best"]
+    tot = {}
+    for pose in record["poses"]:
+        for _m, arms in record["divergence"]["tuned"][pose].items():
+            for c, x in arms.items():
+                k, n = tot.get(c, (0, 0))
+                tot[c] = (k + x["diverged"], n + x["n"])
+    order = sorted(tot, key=lambda c: -tot[c][0] / max(tot[c][1], 1))
+    d, s = record["design"], record["seeds"]
+    ada = _lbl(best["raw"]["best-adaptive"])
+    fix = _lbl(best["raw"]["best-fixed"])
+    arms = [t for p in record["tuning"]["arms"].values() for t in p.values()]
+    n_dis = sum(not t["agreement"]["agree"] for t in arms)
+    same = set(at_defaults(IA)["same within 5 %"]) == set(d["mechanisms"])
+    answer = [
+        "**The answer.** At the shared default settings IAPID-NN-DEKF and APID differ only in "
+        "the Jacobian.",
+        f"There, IAPID-NN-DEKF against APID on the same pose: {said(at_defaults(IA))}.",
+        *(["At the paper's SGD rate the identified Jacobian neither pays nor costs; what a tuned "
+           "rate does is withheld below."] if same else []),
+        f"At the defaults the best adaptive arm ({ada}) against the best fixed one ({fix}): "
+        f"{said(at_defaults(KEY))}.",
+        f"Tuned verdicts are withheld where an arm's two tuning restarts disagree ({n_dis} of "
+        f"{len(arms)} tuned arms, at {d['per_setting']} evaluations per free setting) and on "
+        "the MuJoCo robot.",
+        "The tuned ratios below are descriptive, not verdicts.",
+    ]
+    scope = [
+        "Divergence at the tuned settings (10 m bound): "
+        + (", ".join(f"{_lbl(c)} {tot[c][0]} of {tot[c][1]}" for c in order if tot[c][0])
+           or "none") + ".",
+        f"Level '{record['level']}': {s['tuned']} seeds at the tuned settings "
+        f"({d['mujoco_seeds']} on the MuJoCo robot, lemniscate only), {s['default']} at the "
+        "defaults.",
+        "The earlier regime verdicts (cells counted at a rate grid; then tuned contrasts read as "
+        "effects of the arms) are retracted.",
+    ]
+    return [" ".join(answer), " ".join(scope)]
+
+
+def _reading() -> str:
+    return ("**How to read the ratios.** A ratio is exp of the model's contrast: log RMSE after "
+            "the transient on the both-stable pairs, clustered by seed (Student t at G - 1 df, G "
+            "seeds). The trajectories are "
+            "fixed effects, so an interval is over seeds on these trajectories. A ratio is "
+            "averaged over the pose sources, then given per pose source; n is the count of "
+            "both-stable pairs.")
+
+
+def _ci(e: dict) -> str:
+    return f"{e['ratio']:.3f} [{e['ratio_ci'][0]:.3f}, {e['ratio_ci'][1]:.3f}]"
+
+
+def _defaults(record: dict) -> str:
+    """IAPID - APID at the shared defaults (the identifier itself), per mechanism."""
+    dm = record["contrasts"][IA]["default"]["model"]
+    if not dm:
+        return ""
+    v = record["verdict"]["mechanisms"]
+    rows = [[m, _ci(e), v.get(m, {}).get(IA, {}).get("default", {}).get("verdict", "—")]
+            for m, e in dm["mechanisms"].items()]  # fmt: skip
+    cov = _span(record, IA, "t(G-1)")
+    caveat = (f"The model has {dm['clusters']} seeds as clusters"
+              + (f"; its interval (Student t at {dm['clusters'] - 1} df) covers planted ratios "
+                 f"{cov} of the time at this layout (below)." if cov else
+                 (", too few for a cluster-robust interval to be trusted." if dm["clusters"] < 10
+                  else "."))
+              + " The fit's warnings: "
+              + ("; ".join(dict.fromkeys(dm["warnings"])) or "none") + ".")  # fmt: skip
+    return "\n".join([
+        "**At the defaults** (the same settings for IAPID and APID), IAPID - APID, ratio of "
+        "both-stable RMSE with its 95 % interval:", "",
+        *common.md_table(["mechanism", "ratio [95 % interval]", "verdict"], rows), "", caveat])
+
+
+def _span(record: dict, name: str, interval: str, key: str = "coverage_cells") -> str:
+    """The range of the planted-truth coverage of ``name``'s ``interval`` over the ratios."""
+    c = record.get("coverage", {}).get("contrasts", {}).get(name, {}).get("intervals", {})
+    if interval not in c:
+        return ""
+    v = [100 * x[key] for x in c[interval].values()]
+    return f"{min(v):.0f}-{max(v):.0f} %"
+
+
+def _coverage(record: dict) -> str:
+    """The rule on planted truth (``analysis.regimes.coverage``): a sentence and a table."""
+    cov = record.get("coverage")
+    if not cov:
+        return ""
+    c0 = next(iter(cov["contrasts"].values()))
+    rows = []
+    for name, c in cov["contrasts"].items():
+        for interval, by in c["intervals"].items():
+            for ratio, x in by.items():
+                v = x["verdicts"]
+                rows.append([name, interval, ratio, f"{100 * x['coverage_cells']:.1f} %",
+                             f"{100 * x['coverage_mechanisms']:.1f} %",
+                             *[f"{100 * v[w]:.0f} %" for w in ("pays", "costs",
+                                                               "same within 5 %", "undecided")],
+                             f"{100 * x['correct']:.0f} %"])  # fmt: skip
+    ba = cov["contrasts"].get(KEY, {}).get("intervals", {}).get("t(G-1)", {})
+    power = (f" With {KEY}'s noise the planted verdict comes out in "
+             + ", ".join(f"{100 * x['correct']:.0f} % at {r}" for r, x in ba.items())
+             + " of mechanisms." if ba else "")  # fmt: skip
+    return "\n".join([
+        f"**The rule on planted truth.** Synthetic pairs with the defaults' layout "
+        f"({c0['clusters']} seeds as clusters, {c0['pairs']} both-stable pairs) and the "
+        f"record's noise per mechanism, {c0['replicates']} replicates per planted ratio. "
+        f"The normal interval covers the planted ratio {_span(record, IA, 'normal')} of the "
+        f"time; Student t at G - 1 df covers {_span(record, IA, 't(G-1)')}, and the rule uses "
+        f"it.{power} The noise is Gaussian: a seed effect per mechanism and a pair's own noise, "
+        "at the record's residual levels.", "",
+        *common.md_table(["contrast", "interval", "planted", "covered (cells)",
+                          "covered (mechanisms)", "pays", "costs", "same", "undecided",
+                          "right verdict"], rows)])  # fmt: skip
+
+
+def _tracking(record: dict) -> str:
+    """The second endpoint: tracking failure against divergence (tuned settings)."""
+    tr = record.get("tracking")
+    if not tr:
+        return ""
+    tot = {}
+    for what, src in (("track", tr["counts"]["tuned"]), ("div", record["divergence"]["tuned"])):
+        for by in src.values():
+            for arms in by.values():
+                for c, x in arms.items():
+                    k = tot.setdefault(c, {"track": 0, "div": 0, "n": 0})
+                    k[what] += x["diverged"]
+                    k["n"] += x["n"] if what == "div" else 0
+    ch = tr["verdict_changes"]
+    said = "; ".join(f"{x['contrast']} on {x['mechanism']} ({x['setting']}): "
+                     f"{x['both_stable']} -> {x['both_tracking']}" for x in ch)
+    return (f"**Tracking failure.** A run fails to track when it diverges or its RMSE after the "
+            f"transient is above {tr['threshold_m']:g} m: {tr['reason']}. "
+            "At the tuned settings, failed to track / diverged: "
+            + ", ".join(f"{_lbl(c)} {t['track']} / {t['div']} of {t['n']}"
+                        for c, t in tot.items()) + ". "
+            + ("Comparing on both-tracking instead of both-stable pairs changes no verdict."
+               if not ch else f"Comparing on both-tracking pairs changes {len(ch)} verdicts: "
+               + said + ".")
+            + " The counts per mechanism and pose, with Clopper-Pearson intervals, are in the "
+              "tracking table below.")
+
+
+def _per_pose(record: dict) -> list[str]:
+    """The two contrasts of the answer at the tuned settings: per mechanism, the verdict and the
+    ratio over both pose sources and on each."""
+    v = record["verdict"]["mechanisms"]
+    out = []
+    for name, what in ((KEY, "best adaptive - best fixed"), (IA, "IAPID - APID")):
+        rows = [[m, v[m][name]["verdict"], _r(v[m][name]),
+                 *[f"{x['verdict']}: {_r(x)}" for x in v[m][name]["poses"].values()]]
+                for m in record["mechanisms"]]  # fmt: skip
+        poses = list(v[record["mechanisms"][0]][name]["poses"])
+        out.append("\n".join([
+            f"**Tuned: {what}**, the verdict and the ratio of both-stable RMSE (95 % interval, "
+            "pairs), over both pose sources and on each:", "",
+            *common.md_table(["mechanism", "verdict", "both pose sources", *poses], rows)]))
+    out[-1] += ("\n\nAPID - PID and oracle - IAPID, with their verdicts, are in the verdict "
+                "table below.")
+    return out
+
+
+def _interactions(record: dict) -> str:
+    model = record["contrasts"][IA]["tuned"]["model"]
+    tests = model["tests"]
+    if not (tests["pose_source"] and tests["mechanism"]):
+        return "Interaction tests: too few cells."
+    return (f"Interactions of IAPID - APID: pose source p = {tests['pose_source']['p']:.3g}, "
+            + (f"trajectory p = {tests['trajectory']['p']:.3g}, " if tests["trajectory"] else "")
+            + f"mechanism p = {tests['mechanism']['p']:.3g} (cluster-robust Wald F tests over the "
+            f"simulated plants, {model['clusters']} clusters; the fit's warnings: "
+            f"{len(model['warnings'])})." + _apart(tests.get("apart")))
+
+
+def _apart(t: dict | None) -> str:
+    """The MuJoCo cells' own interaction tests (not pooled with the simulated plants)."""
+    if not t:
+        return ""
+    said = [f"{k.replace('_', ' ')} p = {t[k]['p']:.3g}" for k in ("pose_source", "mechanism")
+            if t[k]]  # fmt: skip
+    return (f" The MuJoCo cells ({', '.join(t['mechanisms'])}; 3 seeds, withheld) are tested "
+            f"apart: {', '.join(said) or 'too few cells'}.")
+
+
+def _tuning(record: dict) -> str:
+    """Per tuned arm and pose source: whether its restarts agree, and optima on a box edge."""
+    rows = []
+    for p, arms in record["tuning"]["arms"].items():
+        for a, t in arms.items():
+            g = t["agreement"]
+            rows.append([a, p, f"{'agree' if g['agree'] else 'disagree'} (spread "
+                               f"{g['spread']:.3g}, tolerance {g['tolerance']:.3g})",
+                         ", ".join(e["setting"] + " " + e["edge"] for e in t["edges"]) or "—"])
+    return "\n".join([
+        "**Tuning.** Two restarts per arm and pose source; they disagree when their spread is "
+        "above 5 % of the best objective (the tolerance). An optimum on a box edge names the "
+        "setting and the edge.", "",
+        *common.md_table(["arm", "pose", "restarts", "optimum on a box edge"], rows)])
+
+
+def _extra(record: dict) -> str:
+    """Two more contrasts per mechanism: the best adaptive arm against the PID tuned on the test
+    mechanism (same budget) and the paper's asymmetric arm."""
+    k = record.get("known_pid")
+    known = {}
+    if k and k["model"]:
+        for m, e in k["model"]["mechanisms"].items():
+            more = [p for p, d in k["divergence"].items() if m in d and d[m]["p"] < 0.05
+                    and d[m]["a_only"] > d[m]["b_only"]]  # fmt: skip
+            known[m] = _ci(e) + (f" (the adaptive arm diverges more on the {', '.join(more)} "
+                                 "pose)" if more else "")
+    paper = {}
+    for m, x in record["paper_arm"]["endpoints"].items():
+        t = [y for y in x["trajectories"].values() if y["n_stable"]]
+        if t:
+            paper[m] = f"{100 * float(np.median([y['rel_diff'] for y in t])):+.1f} %"
+    mechs = [m for m in record["mechanisms"] if m in known or m in paper]
+    if not mechs:
+        return ""
+    lead = [f"**PID tuned on the test mechanism, and the paper's arm.** Column 'vs PID tuned on "
+            f"the mechanism': {k['label']}, as the ratio of both-stable RMSE."] if known else [
+            "**The paper's arm.**"]  # fmt: skip
+    lead.append(f"Column 'paper's arm': {record['paper_arm']['label']}, as the median relative "
+                "difference of the both-stable means over trajectories.")
+    header = ["mechanism", *(["vs PID tuned on the mechanism"] if known else []), "paper's arm"]
+    rows = [[m, *([known.get(m, "—")] if known else []), paper.get(m, "—")] for m in mechs]
+    return "\n".join([" ".join(lead), "", *common.md_table(header, rows)])
+
+
+def _recovery(record: dict) -> str:
+    """Per pose source and contrast, the recovery after a change (tuned settings)."""
+    rec = record.get("recovery")
+    if not rec:
+        return ""
+    rows = []
+    for pose, r in rec["poses"].items():
+        n = min(x["n"] for arms in r["arms"].values() for x in arms.values())
+        for name in (IA, KEY):
+            cells = [x for x in r["contrasts"].get(name, {}).values() if x["n_stable"] > 1]
+            if not cells:
+                continue
+            rel = float(np.median([x["rel_diff"] for x in cells]))
+            lower = sum(x["ci_high"] is not None and x["ci_high"] < 0 for x in cells)
+            higher = sum(x["ci_low"] is not None and x["ci_low"] > 0 for x in cells)
+            rows.append([pose, name, n, len(cells), f"{100 * rel:+.1f} %", lower, higher])
+    return "\n".join([
+        f"**Recovery** (tuned settings): position RMSE over the {rec['window_s']:g} s after the "
+        "payload change or the disturbance's start, on the both-stable pairs. Lower and higher "
+        "count the scenarios whose 95 % interval lies below or above 0.", "",
+        *common.md_table(["pose", "contrast", "seeds", "scenarios", "median difference",
+                          "lower", "higher"], rows)])  # fmt: skip
+
+
+def _cost(record: dict) -> str:
+    c = record["cost"]
+    return (f"Cost: {c['runs']:,} evaluation runs, {c['run_seconds_total']:.0f} s of running over "
+            f"the invocations that filled the stores. The last invocation ran "
+            f"{c['runs_this_time']:,} of them in {c['seconds']:.0f} s (tuning "
+            f"{c['tuning_seconds']:.0f} s; an arm tuned before is read back from its cache) on "
+            f"{c['engine']}."
+            + (" This record was re-derived from those stores without running." if
+               c.get("rederived") else ""))  # fmt: skip
+
+
+def _count_rows(record: dict, counts: dict) -> list[list[str]]:
+    """Rows (mechanism, pose, one ``k/n [low, high]`` cell per arm) of a table of event counts
+    ``counts[pose][mechanism][arm]`` (divergence, tracking failure)."""
+    rows = []
+    for m in record["mechanisms"]:
+        for pose in record["poses"]:
+            arms = counts[pose].get(m, {})
+            rows.append([m, pose, *[
+                f"{arms[a]['diverged']}/{arms[a]['n']} [{arms[a]['ci_low']:.2f}, "
+                f"{arms[a]['ci_high']:.2f}]" if a in arms else "—" for a in record["arms"]]])
+    return rows
+
+
+def table(record: dict) -> str:
+    """Per mechanism and arm at the tuned settings: divergence (k/n, Clopper-Pearson) per pose
+    source, and the verdicts (``tables/regimes.md``)."""
+    header = ["mechanism", "pose", *[_lbl(a) for a in record["arms"]]]
+    lines = ["Divergence at the tuned settings (diverged/runs, 95 % Clopper-Pearson):", "",
+             *common.md_table(header, _count_rows(record, record["divergence"]["tuned"])),
+             ""]  # fmt: skip
+    tr = record.get("tracking")
+    if tr:
+        lines += [f"Tracking failure at the tuned settings (diverged or RMSE after the transient "
+                  f"above {tr['threshold_m']:g} m; failed/runs, 95 % Clopper-Pearson):", "",
+                  *common.md_table(header, _count_rows(record, tr["counts"]["tuned"])),
+                  ""]  # fmt: skip
+    v = record["verdict"]["mechanisms"]
+    names = list(record["contrasts"])
+    lines += ["Verdicts (ratio of both-stable RMSE, 95 % interval, pairs):", "",
+              *common.md_table(["mechanism", *names],
+                               [[m, *[f"{v[m][n]['verdict']}: {_r(v[m][n])}" for n in names]]
+                                for m in record["mechanisms"]])]  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def figure(record: dict):
+    """Each contrast's ratio per mechanism with its interval, per pose source (tuned)."""
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullFormatter
+
+    names = list(record["contrasts"])
+    mechs = record["mechanisms"]
+    fig, axes = plt.subplots(1, len(names), figsize=(3.6 * len(names), 0.4 * len(mechs) + 1.8),
+                             sharey=True, squeeze=False, layout="constrained")  # fmt: skip
+    for ax, n in zip(axes[0], names, strict=True):
+        model = record["contrasts"][n]["tuned"]["model"]
+        for k, pose in enumerate(record["poses"]):
+            for i, m in enumerate(mechs):
+                e = (model or {}).get("cells", {}).get(m, {}).get(pose)
+                if e:
+                    y = i + (k - 0.5) * 0.3
+                    ax.plot(e["ratio_ci"], [y, y], "-", color=f"C{k}")
+                    ax.plot(e["ratio"], y, "o", color=f"C{k}", label=pose if i == 0 else None)
+        ax.axvline(1.0, color="k", lw=0.8)
+        ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(NullFormatter())  # (minor labels overlap on short ranges)
+        ax.set_title(n, fontsize=8)
+        ax.set_xlabel("RMSE ratio a / b (both stable)")
+    axes[0, 0].set_yticks(range(len(mechs)), mechs, fontsize=7)
+    axes[0, 0].legend(fontsize=7)
+    return fig

@@ -1,0 +1,8 @@
+"""``python -m analysis.robots``: runs the study alone (as ``wmr analyze robots`` does)."""
+
+import sys
+
+if __name__ == "__main__":  # a guard: Dask's worker processes re-import the main module
+    from analysis import common
+    from analysis import robots as study
+    sys.exit(common.main(study))

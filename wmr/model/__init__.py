@@ -1,0 +1,2 @@
+"""The nominal model: the unicycle's kinematics, the references and their waypoints, and its
+symbolic (CasADi) form for exact Jacobians."""
