@@ -141,8 +141,7 @@ def long_runs(hours: float = 1.0, names=None) -> dict:
     """A long run of every controller (``names``: those only; no trajectory kept): finite, and
     memory independent of the run length (peak traced allocation of a run of 2 chunks of
     ``wmr.closedloop.step.CHUNK`` steps vs the full run; below one chunk the buffers are smaller, so
-    that
-    is the fair baseline)."""
+    that is the fair baseline)."""
     from wmr.closedloop.step import CHUNK
 
     sc = scn.load(scn.builtin("lemniscate"))

@@ -155,9 +155,8 @@ def test_weight_covariance_stays_spd_along_default_runs(paper, name, scenario_na
 def test_iapid_identifier_learns_the_plant_jacobian_direction(paper):
     """The identified Jacobian J = dt dNN/d(v, w) points roughly the way of the true ZOH Jacobian
     (cosine similarity of the 3x2 matrices, averaged over the last half of the run).  Its size is
-    biased by the closed-loop noise (analysis/jacobians/ measures it); direction is what
-    SGD
-    needs for descent, so that is what is asserted."""
+    biased by the closed-loop noise (analysis/jacobians/ measures it); direction is what SGD needs
+    for descent, so that is what is asserted."""
     r = simulate(paper["lemniscate"], "iapid-nn-dekf", seed=0)
     J = r.state[:, 6:12].reshape(-1, 3, 2)
     assert np.all(np.isfinite(J))

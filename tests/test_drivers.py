@@ -2,11 +2,10 @@
 
 The oracle for the Python driver is the compiled kernel (and the other way round): both run
 ``wmr.closedloop.step._advance_template`` on the same noise and reference, so every record must be
-equal bit
-for bit (``assert_array_equal``, no tolerance) -- for every compiled registry row, with probes, with
-the built-in plant wrapped as a Python-level plant (``wmr.robots.pyplant.TablePlant``), and with a
-Python-level controller that wraps a compiled law.  Any difference means the two drivers do not run
-the same step.
+equal bit for bit (``assert_array_equal``, no tolerance) -- for every compiled registry row, with
+probes, with the built-in plant wrapped as a Python-level plant (``wmr.robots.pyplant.TablePlant``),
+and with a Python-level controller that wraps a compiled law. Any difference means the two drivers
+do not run the same step.
 """
 
 from __future__ import annotations

@@ -32,8 +32,7 @@ EXACT_RTOL = 1e-12
 def drive(spec: scn.Plant, commands, q0=(0.0, 0.0, 0.0), dt=DT):
     """Drive the plant ``spec`` with the command sequence through the loop's plant half
     (``wmr.closedloop.step.plant_step``: delay, no disturbance, no pose filter); the poses ``q_0 ..
-    q_n``
-    and the final actual velocities."""
+    q_n`` and the final actual velocities."""
     sc = scn.from_dict({"name": "p", "duration": len(commands) * dt, "dt": dt,
                         "initial_pose": list(q0), "reference": {"kind": "circle", "radius": 1.0,
                                                                 "period": 10.0}})  # fmt: skip

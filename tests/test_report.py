@@ -117,8 +117,7 @@ def test_lagged_channels_give_the_true_robots_one_step_jacobian(k):
     """Oracle: the true robot's step (wmr.robots.plant) differentiated in the command by central
     differences (wmr.estimation.identification.plant_jacobian), along a run of the shipped
     lagged-velocity plant: the heading row of the w column is g_w rho_w dt, the (x, y) part of the v
-    column has
-    norm g_v rho_v dt, where the kinematic G has dt."""
+    column has norm g_v rho_v dt, where the kinematic G has dt."""
     import dataclasses
 
     from wmr import scenario as scn

@@ -18,9 +18,8 @@ probe=...)`` with the probes of ``wmr.closedloop.probes``: the simulator's own p
 bit-identical to its compiled kernel, which the record checks (``replay_equals_simulate``: the
 probed run equals the kernel run, trajectories and final state bit for bit).  Around each ``law``
 call the weight probe reads the filter: ``P_{k|k-1} = P + Q`` before, ``H_k`` (the network's weight
-Jacobian at
-``theta_{k|k-1}``) and ``P_{k|k}`` after, and recomputes ``K_k`` (eq. 29) and the innovation
-(checked against the law's own ``nn_error``).
+Jacobian at ``theta_{k|k-1}``) and ``P_{k|k}`` after, and recomputes ``K_k`` (eq. 29) and the
+innovation (checked against the law's own ``nn_error``).
 
 Reading of (48) used (two-step form, E10).  ``Pi_k = P_{k|k-1}^-1`` (the prior that defines
 ``V_k = e_{k|k-1}^T Pi_k e_{k|k-1}``, eq. 52), ``Pi_{k+1} = P_{k+1|k}^-1`` with

@@ -13,10 +13,9 @@ Measured
 - ``us_per_step``: one ``simulate(..., keep_trajectory=False)`` of each registered controller on
   the lemniscate, wall time / steps (Python set-up of the run included);
 - ``floor_us_per_step``: ``analysis.performance.floor.floor_update``, the cheapest correct
-  weight-EKF
-  update we could write for the network of ``iapid-nn-dekf`` (same n and m), timed per call inside a
-  jitted loop like the closed loop; the library's ``wmr.estimation.ekf.weight_update`` is timed the
-  same way beside it;
+  weight-EKF update we could write for the network of ``iapid-nn-dekf`` (same n and m), timed per
+  call inside a jitted loop like the closed loop; the library's ``wmr.estimation.ekf.weight_update``
+  is timed the same way beside it;
 - ``python_control_us_per_step``: the same ``iapid-nn-dekf`` closed loop as a python-control
   discrete-time ``nlsys`` (``wmr.linear.nlsys``: its update calls the phases of
   ``wmr.closedloop.step``), stepped by ``control.input_output_response``; its trajectory is checked

@@ -138,9 +138,8 @@ class WeightProbe:
     ``direct_gap = 1 - lambda_k`` from the stored ``P_{k|k}`` (``contraction_direct``); Theorem 1's
     ``mu_k`` (``wmr.estimation.stability.noise_term``) and its parts ``mu_q = tr(Pi_{k+1} Q)`` and
     ``ktpik[k] = K^T Pi_{k+1} K`` (3, 3) (``wmr.estimation.stability.noise_term_parts``), from which
-    ``mu_k``
-    follows for any measurement-noise covariance.  ``theta[k]`` holds the weights after the law at
-    ``k``; ``nu[k]`` the innovation vector (3,).
+    ``mu_k`` follows for any measurement-noise covariance. ``theta[k]`` holds the weights after the
+    law at ``k``; ``nu[k]`` the innovation vector (3,).
 
     The identifier's innovation is rebuilt from what the probe saw at the previous step
     (:func:`identifier_pair`); the law's own norm of it is its logged signal ``nn_error``, to

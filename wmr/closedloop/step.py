@@ -178,8 +178,7 @@ def disturb(t, ua, disturbance):
 def score(k, dt, q, r, u, acc, t_tail, bound):
     """Phase 4: accumulate the errors of the pose at ``t_{k+1}`` against the reference row ``r``
     and the command ``u`` that led there (``wmr.closedloop.metrics.accumulate``), then check the
-    pose;
-    returns the cause code (0: go on)."""
+    pose; returns the cause code (0: go on)."""
     d2 = metrics.accumulate(acc, q, r, (k + 1) * dt >= t_tail, u)
     finite = math.isfinite(q[0]) & math.isfinite(q[1]) & math.isfinite(q[2])  # no branch
     return 1 if not finite else (2 if d2 > bound * bound else 0)

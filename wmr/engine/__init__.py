@@ -13,9 +13,8 @@
 ========================  =========================================================================
 
 ``wmr.engine.study`` keeps the names of the earlier single module (``Job``, ``run_jobs``,
-``engine``,
-``Engine.map_batches``, ``Engine.run_everywhere``, ``LoopbackCluster``...).  Importing this
-package imports none of its modules; the names below load theirs on first use.
+``engine``, ``Engine.map_batches``, ``Engine.run_everywhere``, ``LoopbackCluster``...). Importing
+this package imports none of its modules; the names below load theirs on first use.
 """
 
 from __future__ import annotations

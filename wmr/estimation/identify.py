@@ -138,8 +138,7 @@ def _replay(u, dist, dt, table, at, ints, buffer, starts, q0, out):
     """The plant half of ``wmr.closedloop.step`` (:data:`_PLANT_HALF`) driven by logged commands
     ``u`` and disturbances ``dist`` (n, 2) (row ``k`` a window ``[t_k, inf)`` of the half's
     disturbance table, so exactly ``dist[k]`` is added at ``t_k``); ``out[k]`` the pose at ``t_k``,
-    reset to
-    ``q0[j]`` at row ``starts[j]``."""
+    reset to ``q0[j]`` at row ``starts[j]``."""
     vel, uk, ua, q, j = np.zeros(2), np.zeros(2), np.zeros(2), np.zeros(3), 0
     window, no_log = np.zeros((1, 4)), np.zeros((0, 2))
     window[0, 1] = np.inf
