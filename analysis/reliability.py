@@ -209,12 +209,14 @@ def run_memory(hours: float = 1.0) -> dict:
             "written_mb": round(size / 2**20, 1)}  # fmt: skip
 
 
-def shipped_scenarios() -> dict:
+def shipped_scenarios(max_seconds: float | None = None) -> dict:
     """Every shipped scenario with every controller (seed 0): finite, or its divergence reported
-    with time and cause."""
+    with time and cause.  ``max_seconds``: each run cut to at most this long (the quick level)."""
     out = {}
     for name in scn.shipped():
         sc = scn.load(scn.builtin(name))
+        if max_seconds is not None and sc.duration > max_seconds:
+            sc = dataclasses.replace(sc, duration=max_seconds)
         out[name] = {"plant": sc.plant.describe()}
         for c in controllers.NAMES:
             r = simulate(sc, c, seed=0, keep_trajectory=False)
@@ -275,10 +277,11 @@ def fault_injection() -> dict:
     return res
 
 
-def determinism() -> dict:
-    """Same jobs serially and on two workers, twice: bit-identical rows."""
+def determinism(seeds: int = 2) -> dict:
+    """Same jobs (every controller on the paper's scenarios, ``seeds`` seeds) serially and on two
+    workers, twice: bit-identical rows."""
     scenarios = [scn.load(scn.builtin(n)) for n in scn.PAPER_SCENARIOS]
-    jobs = [Job(sc, n, s) for sc in scenarios for n in controllers.NAMES for s in range(2)]
+    jobs = [Job(sc, n, s) for sc in scenarios for n in controllers.NAMES for s in range(seeds)]
     a = run_jobs(jobs, workers=1, progress=False)
     b = run_jobs(jobs, workers=2, progress=False)
     c = run_jobs(jobs, workers=2, progress=False)
@@ -288,17 +291,18 @@ def determinism() -> dict:
 def run(out, *, quick: bool = False, workers: int | None = None) -> dict:
     """Run every check into ``out`` and write the record ``results/reliability.json`` and
     ``tables/reliability.md``; return the record.  ``quick``: a 3-minute long run instead of an
-    hour and 6 turns of the circle instead of 50.  The determinism check always compares the
-    serial path with 2 workers (``workers`` is not used)."""
+    hour, 6 turns of the circle instead of 50, the shipped scenarios' runs cut to 10 s and the
+    determinism check on 1 seed instead of 2.  The determinism check always compares the serial
+    path with 2 workers (``workers`` is not used)."""
     # quick: the compiled controllers' long runs only (a Python-level one, nmpc, costs ~1 ms a
     # step: its long run is in the full study and, shorter, in tests/test_reliability.py)
     compiled = [n for n in controllers.NAMES if controllers.REGISTRY[n].compiled]
     record = {"bad_inputs": bad_inputs(),
               "long_runs": long_runs(0.05, compiled) if quick else long_runs(1.0),
               "run_memory": run_memory(0.05 if quick else 1.0),
-              "shipped_scenarios": shipped_scenarios(),
+              "shipped_scenarios": shipped_scenarios(10.0 if quick else None),
               "seam": seam_crossings(6 if quick else 50), "faults": fault_injection(),
-              "determinism": determinism()}  # fmt: skip
+              "determinism": determinism(1 if quick else 2)}  # fmt: skip
     bi = record["bad_inputs"]
     record["summary"] = {
         "bad_inputs_tried": bi["tried"], "bad_inputs_as_expected": bi["as_expected"],
