@@ -423,12 +423,13 @@ def store_digests(d: dict, scenario_files=None) -> dict[str, str]:
     ``wmr._jit.source_digest``), ``design_digest`` (the design ``d``, the rungs' plant tables,
     the stiff robot, the source of the functions that build the jobs -- the fitted plant and
     the servo lag included -- and the versions of the libraries whose numbers they take:
-    mujoco, numpy, scipy) and ``scenario_digest`` (the trajectories' scenario files,
+    mujoco, numba, numpy, scipy) and ``scenario_digest`` (the trajectories' scenario files,
     ``scenario_files`` if given, else the shipped ones).  The stages that only summarise the
     runs are not in them: changing those reuses the store."""
     import inspect
 
     import mujoco
+    import numba
     import scipy
 
     from wmr._jit import source_digest
@@ -438,7 +439,7 @@ def store_digests(d: dict, scenario_files=None) -> dict[str, str]:
     code = "".join(inspect.getsource(f) for f in (_design, _scenario, _mujoco, servo_lag,
                                                   _fitted_plants, _jobs, _job_id))  # fmt: skip
     design = repr((sorted(d.items()), RUNGS, _MJ, STIFF, OUTCOME, mujoco.__version__,
-                   np.__version__, scipy.__version__))  # fmt: skip
+                   numba.__version__, np.__version__, scipy.__version__))  # fmt: skip
     return {"code_digest": source_digest(),
             "design_digest": digest_files([], "\0".join((code, design))),
             "scenario_digest": digest_files(files)}  # fmt: skip
