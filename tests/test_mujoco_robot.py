@@ -191,6 +191,31 @@ def test_same_inputs_same_numbers_bit_for_bit():
     assert_array_equal(first, shipped)
 
 
+@pytest.mark.parametrize("table", [{}, {"friction": 0.1}, {"friction": 0.4,
+                                                          "com_offset": [0.02, -0.01]}])
+def test_the_shipped_robot_skips_island_discovery_with_the_same_bits(table):
+    """The shipped robot is one kinematic tree, so MujocoRobot turns MuJoCo's island discovery
+    off (a cost, no physics); the poses, velocities and diagnostics are bit for bit those of
+    the same robot with islands on (MuJoCo's default), sliding (low friction) or not, with a
+    mid-run change; the unwrapped heading is ``heading`` of the orientation up to whole turns."""
+    rng = np.random.default_rng(11)
+    commands = np.column_stack([rng.uniform(-0.3, 0.8, 400), rng.uniform(-2.5, 2.5, 400)])
+    spec = spec_of(**table)
+    changes = [(2.0, {"mass": 13.0})]
+    off = MujocoRobot(spec, DT, changes)
+    assert off.model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_ISLAND
+    on = MujocoRobot(spec, DT, changes)
+    on.model.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_ISLAND)
+    for a, b in zip(drive(None, commands, robot=off), drive(None, commands, robot=on),
+                    strict=True):  # fmt: skip
+        assert_array_equal(a, b)
+    qa = off._qa
+    wrapped = heading(off.data.qpos[qa + 3:qa + 7])
+    q = np.empty(3)
+    off.pose(q)
+    assert abs(math.remainder(q[2] - wrapped, 2 * math.pi)) < 1e-9
+
+
 # -- [[plant.change]] -----------------------------------------------------------------------------
 
 

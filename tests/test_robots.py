@@ -176,3 +176,100 @@ def test_a_sample_of_the_committed_runs_reruns_to_the_same_numbers(traj, rung, c
     assert r.rmse_after_transient["position"] == \
         record["ladder"][traj][rung]["cells"][controller]["values"][str(seed)]
     assert np.isfinite(r.rmse_after_transient["position"])
+
+
+# --- the store: an interrupted ladder resumes, a changed input rebuilds -----------------------
+
+
+def _same(a, b) -> bool:
+    """Two stored values equal (NaN equal to NaN)."""
+    return a == b or (isinstance(a, float) and isinstance(b, float) and math.isnan(a)
+                      and math.isnan(b))  # fmt: skip
+
+
+def _rows_by_id(folder) -> dict:
+    from wmr.engine.store import ShardStore
+
+    t = ShardStore(folder).read().to_pydict()
+    return {i: {k: t[k][n] for k in t} for n, i in enumerate(t["job_id"])}
+
+
+def _quick_jobs(record):
+    return robots._jobs(robots._design(True), record["fitted"], record["servo_lag"]["stiff"])
+
+
+def _without_cost(record):
+    return {k: v for k, v in record.items() if k not in ("cost", "figures")}
+
+
+def test_the_quick_ladders_rows_are_in_its_store_as_the_engine_ran_them(quick):
+    """Every job of the quick ladder has one ``ok`` row in the store, and it is the row the
+    engine's own run of that job gives now (``run_job``, no store): the store loses nothing
+    (float64 columns, the seed, the divergence)."""
+    from wmr.engine.jobs import RESULT_FIELDS, run_job
+
+    out, record = quick
+    jobs = _quick_jobs(record)
+    stored = _rows_by_id(robots.store_folder(out, True))
+    assert set(stored) == {j.job_id for j in jobs} and len(jobs) == record["cost"]["runs"]
+    assert record["cost"]["runs_this_time"] == len(jobs)
+    for j in jobs[::5]:
+        row, direct = stored[j.job_id], run_job(j)
+        assert row["status"] == "ok" and row["variant"] == j.variant == direct.variant
+        assert row["seed"] == direct.seed and row["scenario"] == direct.scenario
+        for name in RESULT_FIELDS:
+            assert _same(row[name], getattr(direct, name)), (j.job_id, name)
+
+
+def test_an_interrupted_ladder_resumes_to_the_uninterrupted_record(quick, tmp_path):
+    """A store holding only the first half of the runs (as an interruption leaves it: the
+    shards written so far) resumes: only the missing half runs, and the store's rows and the
+    record equal those of the uninterrupted run."""
+    import shutil
+
+    from wmr.engine.store import MANIFEST, ShardStore
+
+    out, record = quick
+    full = robots.store_folder(out, True)
+    rows = _rows_by_id(full)
+    jobs = _quick_jobs(record)
+    half = [rows[j.job_id] for j in jobs[: len(jobs) // 2]]
+    cut = robots.store_folder(tmp_path, True)
+    (cut / "rows").mkdir(parents=True)
+    shutil.copy(full / MANIFEST, cut / MANIFEST)
+    ShardStore(cut, robots._schema()).write(half)
+    resumed = robots.run(tmp_path, quick=True, workers=1)
+    assert resumed["cost"]["runs_this_time"] == len(jobs) - len(half)
+    assert _without_cost(resumed) == _without_cost(record)
+    again = _rows_by_id(cut)
+    assert set(again) == set(rows)
+    for i, row in rows.items():
+        assert all(_same(row[k], again[i][k]) for k in row), i
+
+
+def test_a_store_of_other_inputs_is_set_aside_and_rebuilt(quick, tmp_path, capsys):
+    """The store's digests cover the code, the design and the scenario files: a changed design
+    (one seed fewer) or a changed scenario file gives other digests; a store of other digests is
+    set aside with one line and rebuilt, its runs not reused."""
+    import shutil
+
+    out, record = quick
+    d = robots._design(True)
+    base = robots.store_digests(d)
+    assert robots.store_digests({**d, "seeds": 1})["design_digest"] != base["design_digest"]
+    edited = tmp_path / "lemniscate.toml"
+    edited.write_text(scn.builtin("lemniscate").read_text().replace("size = 2.0", "size = 2.5"))
+    assert robots.store_digests(d, [edited])["scenario_digest"] != base["scenario_digest"]
+    assert robots.store_digests(d, [scn.builtin("lemniscate")]) == base
+    folder = tmp_path / "store"
+    shutil.copytree(robots.store_folder(out, True), folder)
+    jobs = _quick_jobs(record)[:2]
+    capsys.readouterr()
+    rows, manifest = robots.run_ladder(jobs, 1, folder, robots.store_digests({**d, "seeds": 1}))
+    said = [line for line in capsys.readouterr().err.splitlines() if "set aside" in line]
+    assert len(said) == 1 and "design_digest" in said[0] and str(folder) in said[0]
+    assert manifest["runs_this_time"] == 2 and len(_rows_by_id(folder)) == 2
+    assert len(list(tmp_path.glob("store.stale-*"))) == 1
+    # the same digests again: resumed, nothing runs
+    rows2, manifest = robots.run_ladder(jobs, 1, folder, robots.store_digests({**d, "seeds": 1}))
+    assert manifest["runs_this_time"] == 0 and [r.job_id for r in rows2] == [j.job_id for j in jobs]

@@ -17,8 +17,10 @@ Two figures, measured as the issue states them:
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 
+import mujoco
 import numpy as np
 
 from analysis.performance import sweep as _sweep_bench
@@ -37,28 +39,57 @@ TIMESTEPS = (0.002, 0.0005)
 def plant_cost(timestep: float, steps: int | None = None, repeats: int = 3) -> dict:
     """Wall µs per control step of the MuJoCo plant alone (``advance`` + ``pose``) at the physics
     step ``timestep`` [s], replaying one fixed-PID run's commands; ``repeats`` replays, every step
-    of each timed.  Median and percentiles over all timed steps."""
+    of each timed.  Median and percentiles over all timed steps.
+
+    Beside it, the physics alone: a twin robot in the same state, given the same wheel-speed
+    setpoints, timed over its ``mujoco.mj_step`` call only, step by step alternating with the
+    plant (which of the two goes first alternates too), so both see the same machine;
+    ``python_us`` is the median of the paired differences (the plant's Python around the
+    physics), and the load averages at the start and end say how busy the machine was."""
     sc = scn.load(scn.builtin(SCENARIO))
     res = sim.simulate(sc, "pid", keep_trajectory=True)
     u = np.asarray(res.u, dtype=float)[: steps or len(res.u)]
     spec = dataclasses.replace(sc.plant.model_table, timestep=timestep)
-    samples = np.empty(repeats * len(u))
+    samples, physics = np.empty(repeats * len(u)), np.empty(repeats * len(u))
     q = np.empty(3)
+    q0 = np.asarray(sc.initial_pose, dtype=float)
+    robot = MujocoRobot(spec, sc.dt)  # the firmware's setpoints of every step, for the twin
+    setpoints = np.empty((len(u), robot.model.nu))
+    robot.reset(q0)
+    for k, a in enumerate(u):
+        robot.advance(k, a)
+        setpoints[k] = robot.data.ctrl
+    load_start = os.getloadavg()[0]
     j = 0
+    clock, step = time.perf_counter_ns, mujoco.mj_step
     for _ in range(repeats):
-        robot = MujocoRobot(spec, sc.dt)
-        robot.reset(np.asarray(sc.initial_pose, dtype=float))
+        robot, twin = MujocoRobot(spec, sc.dt), MujocoRobot(spec, sc.dt)
+        robot.reset(q0)
+        twin.reset(q0)
+        m, d, n = twin.model, twin.data, twin.n_sub
         for k, a in enumerate(u):
-            t0 = time.perf_counter_ns()
-            robot.advance(k, a)
-            robot.pose(q)
-            samples[j] = time.perf_counter_ns() - t0
+            for plant_turn in ((True, False) if j % 2 == 0 else (False, True)):
+                if plant_turn:
+                    t0 = clock()
+                    robot.advance(k, a)
+                    robot.pose(q)
+                    samples[j] = clock() - t0
+                else:  # the twin: this step's setpoints as the plant's firmware wrote them
+                    d.ctrl[:] = setpoints[k]
+                    t0 = clock()
+                    step(m, d, n)
+                    physics[j] = clock() - t0
             j += 1
-    us = samples / 1e3
+        if not np.array_equal(robot.data.qpos, twin.data.qpos):
+            raise AssertionError("the twin's physics did not follow the plant's")
+    us, ph = samples / 1e3, physics / 1e3
     return {"timestep": timestep, "substeps": robot.n_sub, "control_dt": sc.dt,
             "steps_timed": int(us.size), "median_us": float(np.median(us)),
             "p10_us": float(np.percentile(us, 10)), "p90_us": float(np.percentile(us, 90)),
-            "median_us_per_physics_step": float(np.median(us)) / robot.n_sub}
+            "median_us_per_physics_step": float(np.median(us)) / robot.n_sub,
+            "physics_median_us": float(np.median(ph)),
+            "python_us": float(np.median(us - ph)),
+            "load_average": [load_start, os.getloadavg()[0]]}  # fmt: skip
 
 
 def _run_cost(repeats: int) -> dict:

@@ -35,6 +35,14 @@ rung) paired Wilcoxon tests of every pair of controllers over the seeds where bo
 stable, Holm-adjusted within the rung, and TOST at +-5 % of the better mean (two controllers are
 *tied* only when equivalent); a pair's **order changes** between two rungs when it is significant
 on both with opposite signs and both differences exceed 5 % of the better mean.
+
+The runs go through the one engine (``wmr.engine.driver.execute``) into the one shard store
+(``wmr.engine.store.ShardStore``, one row per run, ``job_id`` = trajectory/variant/controller/
+seed): ``make robots`` keeps it in ``$WMR_STORES/robots/full`` (the quick level beside its
+record), an interrupted computation resumes from the runs already stored, and a store whose
+digests (:func:`store_digests`: wmr's code, the design and the job-building code, the scenario
+files) are not the current ones is set aside with one line and rebuilt.  The side measurements
+(servo lag, sliding map, the fitted plants; deterministic) are recomputed on a resume.
 """
 
 from __future__ import annotations
@@ -42,6 +50,7 @@ from __future__ import annotations
 import itertools
 import math
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -49,7 +58,7 @@ import numpy as np
 from analysis import common
 from wmr import scenario as scn
 from wmr import stats
-from wmr.engine.study import Job, run_jobs
+from wmr.engine.study import Job
 from wmr.stats import clopper_pearson
 
 __all__ = ["STEM", "TITLE", "CONTROLLERS", "RUNGS", "run", "check", "render", "table",
@@ -115,11 +124,13 @@ OUTCOME = "tail_position"
 
 def _design(quick: bool) -> dict:
     if quick:
-        return {"trajectories": ("lemniscate",), "controllers": ("pid", "backstepping"),
+        return {"quick": True, "trajectories": ("lemniscate",),
+                "controllers": ("pid", "backstepping"),
                 "seeds": 2, "mj_seeds": 2, "duration": 6.0, "mj_timestep": 0.002,
                 "frictions": (0.1,), "demands": (0.5, 2.0), "side_seeds": 1,
                 "convergence_steps": (0.002, 0.001), "agreement_steps": (0.002,)}  # fmt: skip
-    return {"trajectories": scn.PAPER_SCENARIOS, "controllers": CONTROLLERS, "seeds": SEEDS,
+    return {"quick": False, "trajectories": scn.PAPER_SCENARIOS, "controllers": CONTROLLERS,
+            "seeds": SEEDS,
             "mj_seeds": MJ_SEEDS, "duration": None, "mj_timestep": MJ_TIMESTEP,
             "frictions": FRICTIONS, "demands": DEMANDS, "side_seeds": 3,
             "convergence_steps": CONVERGENCE_STEPS, "agreement_steps": AGREEMENT_STEPS}
@@ -224,9 +235,11 @@ def _jobs(d: dict, fitted: dict, lag: dict) -> list[Job]:
     """The ladder (every rung x controller x trajectory x seed; the MuJoCo rung over
     ``mj_seeds``), the convergence check (every controller at the shipped and at a finer physics
     step, seed 0), and the agreement check (backstepping on the kinematic unicycle plus the
-    stiff servo's lag and on the stiff robot at :data:`AGREEMENT_STEPS`)."""
+    stiff servo's lag and on the stiff robot at :data:`AGREEMENT_STEPS`).  Each job carries
+    its store identity (:func:`_job_id`) and the labels ``trajectory`` and ``variant``."""
     jobs = []
     for traj in d["trajectories"]:
+        start = len(jobs)
         plants = {**{r: p for r, p in RUNGS.items() if p is not None},
                   "mujoco": _mujoco(timestep=d["mj_timestep"]),
                   "fitted": fitted[traj]["toml"]}  # fmt: skip
@@ -243,6 +256,9 @@ def _jobs(d: dict, fitted: dict, lag: dict) -> list[Job]:
         for rung, plant in extra.items():
             sc = _scenario(traj, rung, plant, d["duration"])
             jobs += [Job(sc, "backstepping", s, variant=rung) for s in range(d["side_seeds"])]
+        jobs[start:] = [replace(j, job_id=_job_id(traj, j),
+                                labels=(("trajectory", traj), ("variant", j.variant)))
+                        for j in jobs[start:]]  # fmt: skip
     return jobs  # the nominal robot at 2 ms (planted discrepancy): the convergence runs
 
 
@@ -360,17 +376,22 @@ COMMITTED = Path(__file__).resolve().parents[2] / "paper"
 
 
 def run(out, *, quick: bool = False, workers: int | None = None, full: bool = False) -> dict:
-    """The study into ``out``: ``quick`` a short version (tests); ``full`` recomputes it (1,500
-    runs; 773 s measured on 2 workers of a machine shared with four other engineers:
-    ``make robots``); otherwise a full record stored in
-    ``out`` or, failing that, the repository's committed one is re-rendered (table, figures), so
-    ``wmr reproduce`` stays short, and only without any record is the study computed."""
+    """The study into ``out``: ``quick`` a short version (tests); ``full`` recomputes it (1,332
+    runs; 1,313 s measured on 2 workers of a shared machine: ``make robots``); otherwise a full
+    record stored in ``out`` or, failing that, the repository's committed one is re-rendered
+    (table, figures), so ``wmr reproduce`` stays short, and only without any record is the study
+    computed.
+
+    The runs go through the one engine into a shard store (:func:`store_folder`): an
+    interrupted computation resumes (the finished runs are read back, only the missing ones
+    run); a store of other inputs (:func:`store_digests`) is set aside with one line on stderr
+    and rebuilt."""
     if not (quick or full):
         for base in (Path(out), COMMITTED):
             record = common.load_record(base, STEM)
             if record and not record["quick"]:
                 return _write(out, record)
-    return _write(out, _compute(quick, workers))
+    return _write(out, _compute(_design(quick), workers, store_folder(out, quick)))
 
 
 def _write(out, record: dict) -> dict:
@@ -382,10 +403,117 @@ def _write(out, record: dict) -> dict:
     return record
 
 
-def _compute(quick: bool, workers: int | None) -> dict:
+# -- the store ------------------------------------------------------------------------------------
+
+#: The store's ``kind`` (``wmr.engine.store``).
+KIND = "wmr robots store"
+
+
+def store_folder(out, quick: bool) -> Path:
+    """Where the ladder's runs are kept: ``out/.robots-store`` at the quick level (beside its
+    record), ``$WMR_STORES/robots/full`` for the full study
+    (``wmr.engine.store.studies_folder``)."""
+    from wmr.engine.store import studies_folder
+
+    return Path(out) / ".robots-store" if quick else studies_folder() / STEM / "full"
+
+
+def store_digests(d: dict, scenario_files=None) -> dict[str, str]:
+    """What the ladder's runs read, as the store's digests: ``code_digest`` (wmr's sources,
+    ``wmr._jit.source_digest``), ``design_digest`` (the design ``d``, the rungs' plant tables,
+    the stiff robot, the source of the functions that build the jobs -- the fitted plant and
+    the servo lag included -- and the versions of the libraries whose numbers they take:
+    mujoco, numba, numpy, scipy) and ``scenario_digest`` (the trajectories' scenario files,
+    ``scenario_files`` if given, else the shipped ones).  The stages that only summarise the
+    runs are not in them: changing those reuses the store."""
+    import inspect
+
+    import mujoco
+    import numba
+    import scipy
+
+    from wmr._jit import source_digest
+    from wmr.engine.store import digest_files
+
+    files = scenario_files or [scn.builtin(t) for t in d["trajectories"]]
+    code = "".join(inspect.getsource(f) for f in (_design, _scenario, _mujoco, servo_lag,
+                                                  _fitted_plants, _jobs, _job_id))  # fmt: skip
+    design = repr((sorted(d.items()), RUNGS, _MJ, STIFF, OUTCOME, mujoco.__version__,
+                   numba.__version__, np.__version__, scipy.__version__))  # fmt: skip
+    return {"code_digest": source_digest(),
+            "design_digest": digest_files([], "\0".join((code, design))),
+            "scenario_digest": digest_files(files)}  # fmt: skip
+
+
+def _schema():
+    import pyarrow as pa
+
+    from wmr.engine.jobs import COLUMN_TYPES, COLUMNS
+
+    cols = [("job_id", pa.string()), ("trajectory", pa.string()), ("variant", pa.string()),
+            ("scenario", pa.string()), ("controller", pa.string()), ("seed", pa.int64())]
+    return pa.schema(cols + [(c, getattr(pa, COLUMN_TYPES[c])()) for c in COLUMNS])
+
+
+def _job_id(traj: str, job: Job) -> str:
+    return f"{traj}/{job.variant}/{job.controller}/{job.seed}"
+
+
+def _stored_rows(store, jobs: list[Job]) -> list:
+    """The store's rows of ``jobs``, in job order, as objects with the fields the summary reads
+    (``scenario``, ``variant``, ``controller``, ``seed``, the result columns)."""
+    from types import SimpleNamespace
+
+    t = store.read().to_pydict()
+    by_id = {i: k for k, i in enumerate(t["job_id"])}
+    rows = []
+    for j in jobs:
+        k = by_id[j.job_id]
+        rows.append(SimpleNamespace(**{name: t[name][k] for name in t}))
+    return rows
+
+
+def run_ladder(jobs: list[Job], workers: int | None, folder, digests: dict[str, str],
+               flush_seconds: float = 30.0) -> tuple[list, dict]:
+    """Run ``jobs`` (each with its ``job_id``) on the engine into the store at ``folder``,
+    resuming it: a job with an ``ok`` row there is not run again (an error row is).  Returns
+    the rows in job order (:func:`_stored_rows`) and the store's manifest (``runs_this_time``,
+    ``run_seconds_total`` summed over the invocations).  A run that raised stops the study
+    with its error (the row stays stored: a rerun retries it)."""
+    from wmr.engine.driver import execute
+    from wmr.engine.executors import engine
+    from wmr.engine.jobs import job_row
+    from wmr.engine.store import ShardStore
+
+    store = ShardStore.open(folder, _schema(), digests, kind=KIND, study=STEM)
+    done = store.ids("ok")
+    todo = [j for j in jobs if j.job_id not in done]
+    manifest = store.manifest
+    total = float(manifest.get("run_seconds_total", 0.0))
+    t0 = time.perf_counter()
+    try:
+        if todo:
+            with engine(1 if len(todo) <= 1 else workers) as eng:
+                execute(todo, eng, job_row, store=store, keep=False,
+                        flush_seconds=flush_seconds, progress=None, desc=STEM,
+                        tag=f"{STEM}-{digests['design_digest']}")  # fmt: skip
+    finally:
+        ran = time.perf_counter() - t0
+        manifest.update(jobs=len(jobs), done=len(store.ids("ok")), runs_this_time=len(todo),
+                        run_seconds=round(ran, 3), run_seconds_total=round(total + ran, 3))
+        store.write_manifest(manifest)
+    rows = _stored_rows(store, jobs)
+    failed = [r for r in rows if r.status != "ok"]
+    if failed:
+        raise RuntimeError(f"{len(failed)} ladder run(s) raised, the first "
+                           f"{failed[0].job_id}: {failed[0].error}")
+    return rows, manifest
+
+
+def _compute(d: dict, workers: int | None, folder) -> dict:
     """Measure the servo lag, the sliding map, fit the kinematic plant to the MuJoCo logs, run
-    the ladder through the run engine: the record (without its figures)."""
-    d = _design(quick)
+    the ladder through the run engine into the store at ``folder`` (resumed): the record
+    (without its figures)."""
     t0 = time.perf_counter()
     lag = servo_lag(STIFF)
     nominal_lag = servo_lag()
@@ -395,15 +523,17 @@ def _compute(quick: bool, workers: int | None) -> dict:
                for mu in d["frictions"] for q in d["demands"]]  # fmt: skip
     fitted = _fitted_plants(d)
     jobs = _jobs(d, fitted, lag)
-    rows = run_jobs(jobs, workers, progress=None, desc=STEM)
-    record = {"quick": quick, "controllers": list(d["controllers"]),
+    rows, manifest = run_ladder(jobs, workers, folder, store_digests(d))
+    record = {"quick": d["quick"], "controllers": list(d["controllers"]),
               "trajectories": list(d["trajectories"]), "rungs": list(RUNGS),
               "seeds": d["seeds"], "mj_seeds": d["mj_seeds"], "mj_timestep": d["mj_timestep"],
               "outcome": OUTCOME, "alpha": ALPHA, "relevant": RELEVANT,
               "servo_lag": {"stiff": lag, "nominal": nominal_lag}, "stiff": STIFF,
               "sliding": sliding, "sliding_threshold_rad": SLIDING, "fitted": fitted,
               **_summarise(rows, d),
-              "cost": {"runs": len(jobs), "seconds": time.perf_counter() - t0}}  # fmt: skip
+              "cost": {"runs": len(jobs), "seconds": time.perf_counter() - t0,
+                       "runs_this_time": manifest["runs_this_time"],
+                       "run_seconds_total": manifest["run_seconds_total"]}}  # fmt: skip
     return record
 
 

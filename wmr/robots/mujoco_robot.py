@@ -28,6 +28,7 @@ position in the plane and the heading of its x axis, unwrapped (continuous acros
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -69,6 +70,8 @@ _KEYS = ("robot", "file", "timestep", *SHIPPED_ONLY, "nominal_wheel_radius", "no
 _STEP_TOL = 1e-9
 #: [m/s] floor of the slip ratio's denominator (a wheel at rest has no defined slip).
 _SLIP_SPEED_FLOOR = 0.01
+#: 2 pi, once.
+_TWO_PI = 2 * math.pi
 #: A wheel axis counts as the base's +y axis when their cosine exceeds this.
 _AXIS_COS = 0.99
 
@@ -310,6 +313,11 @@ class MujocoRobot:
         self.n_sub = spec.substeps(self.dt)
         self.model = m = mujoco.MjModel.from_xml_string(spec.xml)
         m.opt.timestep = spec.timestep
+        if spec.shipped:
+            # one kinematic tree: one constraint island, whose discovery at every physics step
+            # is pure cost (~4 % of a step); the solver's numbers are the same bits without it
+            # (tests/test_mujoco_robot.py compares both on a run)
+            m.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_ISLAND)
         self.data = mujoco.MjData(m)
         ids = _names(m)
         self._base = ids["base"]
@@ -340,6 +348,12 @@ class MujocoRobot:
         d = self.data
         self._qpos, self._qvel, self._ctrl, self._xmat = d.qpos, d.qvel, d.ctrl, d.xmat
         self._force = d.actuator_force
+        qa = self._qa
+        self._quat = d.qpos[qa + 3:qa + 7]  # the base's orientation (w, x, y, z), a view
+        self._xy = d.qpos[qa:qa + 2]  # the base's position in the plane, a view
+        self._motor_left, self._motor_right = self._motor
+        self._n_changes = len(self._changes)
+        self._step = functools.partial(mujoco.mj_step, m, d, self.n_sub)
         self._next_change = 0
         self._theta = 0.0
         self._yaw = 0.0
@@ -380,29 +394,30 @@ class MujocoRobot:
 
         Changes due at ``t_k = k dt`` are applied first; the firmware writes the wheel-speed
         setpoints ``omega_L = (v - w b_n / 2) / r_n``, ``omega_R = (v + w b_n / 2) / r_n``
-        [rad/s] to the servos; ``n_sub`` physics steps follow.
+        [rad/s] to the servos; ``n_sub`` physics steps follow (one ``mj_step`` call).
+
+        Called once per control step: what it reads is bound once in ``__init__`` (the ctrl
+        buffer, the orientation's view, the step with its model, data and count), so the
+        Python around the physics is a handful of float operations.
         """
-        if self._next_change < len(self._changes):
+        if self._next_change < self._n_changes:
             self._apply_changes(k * self.dt)
         v, w = float(a[0]), float(a[1])
         half, r = self._half_track, self._r_nominal
-        self._ctrl[self._motor[0]] = (v - w * half) / r
-        self._ctrl[self._motor[1]] = (v + w * half) / r
-        mujoco.mj_step(self.model, self.data, self.n_sub)
-        qa = self._qa
-        qp = self._qpos
-        yaw = heading((qp[qa + 3], qp[qa + 4], qp[qa + 5], qp[qa + 6]))
+        ctrl = self._ctrl
+        ctrl[self._motor_left] = (v - w * half) / r
+        ctrl[self._motor_right] = (v + w * half) / r
+        self._step()
+        yaw = _yaw(*self._quat.tolist())
         step = yaw - self._yaw
         # unwrap: a control step turns the robot by less than pi (|w| < pi / dt)
-        self._theta += step - 2 * math.pi * round(step / (2 * math.pi))
+        self._theta += step - _TWO_PI * round(step / _TWO_PI)
         self._yaw = yaw
 
     def pose(self, out) -> None:
         """Write the base's ``(x, y, theta)`` [m, m, rad] into ``out`` (3,): position in the
         plane and the heading of its x axis, unwrapped (continuous across +-pi)."""
-        qa = self._qa
-        out[0] = self._qpos[qa]
-        out[1] = self._qpos[qa + 1]
+        out[0], out[1] = self._xy
         out[2] = self._theta
 
     def velocity(self, out) -> None:
@@ -480,7 +495,11 @@ class MujocoRobot:
 def heading(quat) -> float:
     """Yaw [rad] in (-pi, pi] of a body's x axis projected on the ground, from its orientation
     quaternion ``(w, x, y, z)``: ``atan2(2 (w z + x y), 1 - 2 (y^2 + z^2))``."""
-    qw, qx, qy, qz = (float(c) for c in quat)
+    return _yaw(*(float(c) for c in quat))
+
+
+def _yaw(qw: float, qx: float, qy: float, qz: float) -> float:
+    """:func:`heading` of the quaternion's four floats (the one formula; the step calls it)."""
     return math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
 
 
