@@ -429,7 +429,10 @@ def test_quick_run_writes_the_study_and_passes_check(tmp_path):
     nmpc = stored["python_controllers"]["nmpc"]  # issue 21: its own step, with percentiles
     assert nmpc["runs"] == 2 and nmpc["steps"] == 2 * 4000 and "nmpc" not in stored["us_per_step"]
     assert 0 < nmpc["step_ms"]["median"] <= nmpc["step_ms"]["p95"] <= nmpc["step_ms"]["max"]
-    assert nmpc["step_ms"]["median"] * 1e3 < nmpc["us_per_step"]  # the loop around it costs too
+    # the loop around the solve costs too; against the runs' median, not their minimum: the
+    # solve's median pools both runs' steps, so a slower second run (a loaded machine) lifts it
+    # above the faster run's mean (measured under make test: 75.3 vs a minimum of 69.3 us)
+    assert nmpc["step_ms"]["median"] * 1e3 < nmpc["us_per_step_median"]
     for name in ("backstepping", "iapid-nn-dekf"):  # issue 12: the plant's cost is measured
         p = stored["plant"][name]
         assert p["ratio"] > 0.5
