@@ -147,6 +147,10 @@ class Budget:
 # ---------------------------------------------------------------------------------------------
 # The arms' free settings (boxes: log scale for rates, gains and covariances)
 
+# Boxes widened where the committed record level's optima sat on an edge (issue 22 item 2): the
+# alphas' floor 0.1 -> 0.01, BSC's k3 30 -> 100.  Kept, with their reason: the P and I gains' 50
+# and the D gains' 0.45 (below 0.5) are the PID's admissible range (``gain_max``, where the
+# adaptive laws clip the gains), and the D gains' floor 0 is no derivative action.
 _PID = (Free("Kpv", "gains", 0, low=0.5, high=50.0, log=True),
         Free("Kiv", "gains", 1, low=0.05, high=50.0, log=True),
         Free("Kdv", "gains", 2, low=0.0, high=0.45),
@@ -155,12 +159,12 @@ _PID = (Free("Kpv", "gains", 0, low=0.5, high=50.0, log=True),
         Free("Kdw", "gains", 5, low=0.0, high=0.45))  # fmt: skip
 _SGD = (Free("mu x", "mu", multiplier=True, low=1e-2, high=1e2, log=True),
         Free("jacobian_scale", "jacobian_scale", levels=("step", "second")),
-        Free("alpha1", "alpha", 0, low=0.1, high=10.0, log=True),
-        Free("alpha2", "alpha", 1, low=0.1, high=10.0, log=True),
-        Free("alpha3", "alpha", 2, low=0.1, high=10.0, log=True))  # fmt: skip
+        Free("alpha1", "alpha", 0, low=0.01, high=10.0, log=True),
+        Free("alpha2", "alpha", 1, low=0.01, high=10.0, log=True),
+        Free("alpha3", "alpha", 2, low=0.01, high=10.0, log=True))  # fmt: skip
 _BSC = (Free("k1", "gains", 0, low=0.25, high=25.0, log=True),
         Free("k2", "gains", 1, low=1.0, high=100.0, log=True),
-        Free("k3", "gains", 2, low=0.5, high=30.0, log=True))  # fmt: skip
+        Free("k3", "gains", 2, low=0.5, high=100.0, log=True))  # fmt: skip
 _DANN = (Free("p0", "p0", low=10.0, high=1e4, log=True),
          Free("q", "q", low=1e-7, high=1e-3, log=True),
          Free("r", "r", low=10.0, high=1e4, log=True))  # fmt: skip

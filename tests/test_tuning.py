@@ -120,3 +120,15 @@ def test_an_arm_tuned_through_the_engine(tmp_path):
     assert rec["objective"] <= rec["objective_at_defaults"] + 1e-9  # x0 = defaults, evaluated
     assert 0 <= rec["objective"] < tuning.DIVERGED_SCORE
     assert len(rec["restarts"]) == 2 and "agree" in rec["agreement"]
+
+
+@pytest.mark.parametrize("controller", tuning.ARMS)
+def test_every_corner_of_an_arms_box_is_a_valid_scenario(controller):
+    """A box reaching outside what the controller admits (a gain above ``gain_max``, say) would
+    stop a tuning run mid-way with a ScenarioError: both corners must build."""
+    from analysis.regimes import design
+
+    a = tuning.arm(controller, "filtered")
+    for u in (np.zeros(a.dim), np.ones(a.dim)):
+        table = tuning.settings_table(a, tuning.values_at(a, u))
+        tuning.scenario(design.document("lemniscate"), a, table)
