@@ -208,6 +208,15 @@ def unit_of_defaults(a: Arm) -> np.ndarray:
     return np.array(out)
 
 
+def other_restart(a: Arm, rec: Mapping) -> dict[str, Any]:
+    """The settings table of tuned arm ``a``'s runner-up restart (``rec``: its tuning record;
+    the best restart's table is ``rec["table"]``): a tuned verdict is checked against it."""
+    fs = [r["f"] for r in rec["restarts"]]
+    best = fs.index(min(fs))
+    other = min((r for i, r in enumerate(rec["restarts"]) if i != best), key=lambda r: r["f"])
+    return settings_table(a, values_at(a, other["x"]))
+
+
 def settings_table(a: Arm, values: Mapping[str, Any]) -> dict[str, Any]:
     """The ``[controllers.<name>]`` table (TOML values) of the arm at ``values`` (the free
     settings' values by name; the others keep the controller's defaults)."""

@@ -420,3 +420,26 @@ def test_a_tuned_verdict_is_withheld_when_a_tuning_did_not_converge():
         "withheld"
     assert report.verdicts(fixed)["mechanisms"]["mujoco"][ia]["poses"]["raw"]["verdict"] == \
         "withheld"  # MuJoCo stays withheld: tuned on kinematic plants
+
+
+def test_a_tuned_verdict_stands_only_if_every_pairing_of_the_restarts_gives_it():
+    """With the runner-up restarts' runs (``restarts`` in a contrast), the restart agreement
+    flag no longer decides: a verdict the four pairings share stands even though the restarts'
+    objectives disagree, and one pairing with another word withholds it."""
+    import copy
+
+    record = json.loads((Path(__file__).resolve().parents[1] / "paper" / "results"
+                         / "regimes.json").read_text())  # fmt: skip
+    ia = "iapid-nn-dekf - adaptive-pid"
+    c = record["contrasts"][ia]
+    c["restarts"] = {k: copy.deepcopy(c["tuned"]) for k in
+                     ("tuned / tuned-other", "tuned-other / tuned", "tuned-other / tuned-other")}
+    v = report.verdicts(record)["mechanisms"]["ideal"][ia]["poses"]["raw"]
+    assert v["verdict"] not in ("withheld", "costs") and v["withheld"] is None  # as committed
+    cell = c["restarts"]["tuned-other / tuned"]["model"]["cells"]["ideal"]["raw"]
+    lo, hi = cell["ratio_ci"]
+    cell["ratio_ci"] = [hi + 0.5, hi + 1.0]  # that pairing says "costs"
+    v2 = report.verdicts(record)["mechanisms"]["ideal"][ia]["poses"]["raw"]
+    assert v2["verdict"] == "withheld" and "costs" in v2["withheld"]
+    assert report.verdicts(record)["mechanisms"]["mujoco"][ia]["poses"]["raw"]["verdict"] == \
+        "withheld"  # MuJoCo stays withheld

@@ -30,8 +30,21 @@ import numpy as np
 
 from analysis import common, tuning
 from analysis.regimes import coverage as rcov
-from analysis.regimes import design, report
+from analysis.regimes import design, rates, report
 from analysis.regimes import stats as rstats
+from analysis.regimes.pairs import (
+    ADAPTIVE,
+    FIXED,
+    PAIRINGS,
+    POSES,
+    best_arm,
+    endpoints,
+    join,
+    model_frame,
+    pairs_of,
+    paper_pairs,
+    stable,
+)
 from wmr.engine import sweep
 
 __all__ = ["STEM", "TITLE", "ARMS", "LEVELS", "CONTRASTS", "run", "check", "render", "table",
@@ -42,9 +55,6 @@ STEM = "regimes"
 TITLE = "When does adaptation pay? A matched design with equal tuning"
 #: The arms (the tuning stage's controllers), in table order.
 ARMS = tuning.ARMS
-FIXED = ("pid", "backstepping")
-ADAPTIVE = ("adaptive-pid", "iapid-nn-dekf", "adaptive-nn", "adaptive-bsc")
-POSES = ("raw", "filtered")
 #: The contrasts of the model (a, b): "best-adaptive" / "best-fixed" are chosen per pose source
 #: by the tuning objective on the training set (not by the evaluation).
 CONTRASTS = (("iapid-nn-dekf", "adaptive-pid"), ("adaptive-pid", "pid"),
@@ -57,17 +67,19 @@ LEVELS = {
               "mechanisms": ("ideal", "lag-delay"), "mujoco": (), "trajectories": ("sinusoid",),
               "seeds": 3, "default_seeds": 3, "duration": 7.0, "mujoco_seeds": 0,
               "mujoco_duration": None, "per_setting": 1, "train_seeds": (100,),
-              "train_duration": 3.0, "training": 1, "coverage_replicates": 4},
+              "train_duration": 3.0, "training": 1, "coverage_replicates": 4, "rate_seeds": 2},
     "record": {"arms": ARMS, "mechanisms": tuple(design.MECHANISMS),
                "mujoco": tuple(design.MUJOCO), "trajectories": design.TRAJECTORIES, "seeds": 20,
                "default_seeds": 6, "duration": None, "mujoco_seeds": 3, "mujoco_duration": None,
                "per_setting": 3, "train_seeds": (100,), "train_duration": 20.0, "training": 5,
-               "recovery_seeds": 10, "known_pid": True, "coverage_replicates": 100},
+               "recovery_seeds": 10, "known_pid": True, "coverage_replicates": 100,
+               "rate_seeds": 6},
     "full": {"arms": ARMS, "mechanisms": tuple(design.MECHANISMS),
              "mujoco": tuple(design.MUJOCO), "trajectories": design.TRAJECTORIES, "seeds": 20,
              "default_seeds": 20, "duration": None, "mujoco_seeds": 10, "mujoco_duration": None,
-             "per_setting": 10, "train_seeds": (100, 101), "train_duration": 20.0,
-             "training": 5, "recovery_seeds": 20, "known_pid": True, "coverage_replicates": 200},
+             "per_setting": 30, "train_seeds": (100, 101), "train_duration": 20.0,
+             "training": 5, "recovery_seeds": 20, "known_pid": True, "coverage_replicates": 200,
+             "rate_seeds": 10},
 }  # fmt: skip
 
 
@@ -135,6 +147,10 @@ def _specs(d: dict, tuned: dict, folder: Path, known: dict | None = None
     for pose in POSES:
         tables = {c: tuned[pose][c]["table"] for c in d["arms"]}
         runs = [("tuned", files, d["seeds"], tables), ("default", files, d["default_seeds"], None)]
+        if d.get("other_restart", True):  # each arm at its runner-up restart: PAIRINGS
+            other = {c: tuning.other_restart(tuning.arm(c, pose), tuned[pose][c])
+                     for c in d["arms"]}  # fmt: skip
+            runs.append(("tuned-other", files, d["seeds"], other))
         if mj:
             runs.append(("tuned-mujoco", mj, d["mujoco_seeds"], tables))
         for level, names, seeds, tab in runs:
@@ -148,6 +164,12 @@ def _specs(d: dict, tuned: dict, folder: Path, known: dict | None = None
             p.write_text(_spec_text(f"regimes-known-pid-{m}-{pose}", names, d["seeds"], pose,
                                     {"pid": t["table"]}, ("pid",)))  # fmt: skip
             out.append((f"known-pid-{m}", pose, p))
+        for m in rates.RATES if d.get("rate_seeds") else ():  # the sensitivity figure's runs
+            lv = rates.level(m)
+            p = folder / f"{lv}-{pose}.toml"
+            p.write_text(_spec_text(f"regimes-{lv}-{pose}", files, d["rate_seeds"], pose,
+                                    rates.tables(m), rates.ARMS))  # fmt: skip
+            out.append((lv, pose, p))
         if events and d.get("recovery_seeds"):
             p = folder / f"recovery-{pose}.toml"
             p.write_text(_spec_text(f"regimes-recovery-{pose}", events, d["recovery_seeds"], pose,
@@ -172,8 +194,8 @@ def _recovery(done: list[tuple[str, str, Path]], store: Path, tuned: dict) -> di
         rows["pose"], rows["level"] = pose, "recovery"
         sp = rows.scenario.str.split("@", expand=True)
         rows["trajectory"], rows["mechanism"] = sp[0], sp[1]
-        best = {"best-adaptive": _best(tuned, pose, ADAPTIVE), "best-fixed": _best(tuned, pose,
-                                                                                   FIXED)}
+        best = {"best-adaptive": best_arm(tuned, pose, ADAPTIVE),
+                "best-fixed": best_arm(tuned, pose, FIXED)}
         rec: dict = {"arms": {}, "contrasts": {}}
         for (sc, c), g in rows.groupby(["scenario", "controller"], sort=False):
             ok = g.recovery_rmse[~g.failed]
@@ -184,7 +206,7 @@ def _recovery(done: list[tuple[str, str, Path]], store: Path, tuned: dict) -> di
             if ca not in set(rows.controller) or cb not in set(rows.controller):
                 continue
             key = ["scenario", "seed"]
-            j = _join(rows[rows.controller == ca].set_index(key),
+            j = join(rows[rows.controller == ca].set_index(key),
                       rows[rows.controller == cb].set_index(key))
             rec["contrasts"][f"{a} - {b}"] = {
                 sc: rstats.pair_rmse(g.tail_position_a, g.failed_a, g.tail_position_b,
@@ -242,12 +264,19 @@ def run(out, *, quick: bool = False, workers: int | None = None, level: str | No
             rec = common.load_record(base, STEM)
             if rec and rec.get("level") in LEVELS and "arms_run" in rec:
                 rec["verdict"] = report.verdicts(rec)  # the rule of this code, on the record
-                rec["figures"] = [common.save_figure(out, f"{STEM}_contrasts.png",
-                                                     report.figure(rec))]  # fmt: skip
+                rec["figures"] = _figures(out, rec)
                 common.write_record(out, STEM, rec)
                 common.write_table(out, STEM, table(rec))
                 return rec
     return compute(out, level or ("quick" if quick else "record"), workers)
+
+
+def _figures(out, record: dict) -> list[str]:
+    """The section's figures: the contrasts, and the rate sensitivity where the record has it."""
+    figs = [common.save_figure(out, f"{STEM}_contrasts.png", report.figure(record))]
+    if record.get("rates"):
+        figs.append(common.save_figure(out, f"{STEM}_rates.png", rates.figure(record["rates"])))
+    return figs
 
 
 def compute(out, level: str, workers: int | None = None) -> dict:
@@ -304,9 +333,9 @@ def _assemble(out, level: str, d: dict, done, store: Path, tuned: dict, known: d
         f"{a} - {b}": rcov.coverage(model_frame(rows, tuned, (a, b), "default"),
                                     d.get("coverage_replicates", 20))
         for a, b in COVERED}}  # fmt: skip
+    record["rates"] = rates.analyse(rows)
     record["verdict"] = report.verdicts(record)
-    record["figures"] = [common.save_figure(out, f"{STEM}_contrasts.png",
-                                            report.figure(record))]  # fmt: skip
+    record["figures"] = _figures(out, record)
     common.write_record(out, STEM, record)
     common.write_table(out, STEM, table(record))
     return record
@@ -355,10 +384,10 @@ def _known(rows, tuned: dict, known: dict) -> dict:
     key = ["pose", "mechanism", "trajectory", "seed"]
     parts = []
     for pose in POSES:
-        best = _best(tuned, pose, ADAPTIVE)
+        best = best_arm(tuned, pose, ADAPTIVE)
         x = rows[(rows.level == "tuned") & (rows.pose == pose) & (rows.controller == best)]
         y = rows[(rows.level == "known-pid") & (rows.pose == pose)]
-        parts.append(_join(x.set_index(key), y.set_index(key)))
+        parts.append(join(x.set_index(key), y.set_index(key)))
     import pandas as pd
 
     p = pd.concat(parts, ignore_index=True)
@@ -374,82 +403,12 @@ def _known(rows, tuned: dict, known: dict) -> dict:
             else None}  # fmt: skip
 
 
-def _best(tuned: dict, pose: str, arms) -> str:
-    """The arm of ``arms`` (those tuned) with the lowest training objective on ``pose``."""
-    return min((c for c in arms if c in tuned[pose]), key=lambda c: tuned[pose][c]["objective"])
-
-
-def _pairs_of(rows, a: str, b: str, best: dict):
-    """Both arms' runs aligned on (level, pose, mechanism, trajectory, seed)."""
-    key = ["level", "pose", "mechanism", "trajectory", "seed"]
-    parts = []
-    for pose in POSES:
-        ca = best[pose].get(a, a)
-        cb = best[pose].get(b, b)
-        x = rows[(rows.pose == pose) & (rows.controller == ca)].set_index(key)
-        y = rows[(rows.pose == pose) & (rows.controller == cb)].set_index(key)
-        parts.append(_join(x, y))
-    import pandas as pd
-
-    return pd.concat(parts, ignore_index=True)
-
-
-def _paper_pairs(rows):
-    """The paper's asymmetric arm: IAPID on the filtered pose against APID on the raw pose
-    (``pose_source = "paper"`` gives each exactly these poses), at the defaults."""
-    key = ["mechanism", "trajectory", "seed"]
-    r = rows[rows.level == "default"]
-    x = r[(r.pose == "filtered") & (r.controller == "iapid-nn-dekf")].set_index(key)
-    y = r[(r.pose == "raw") & (r.controller == "adaptive-pid")].set_index(key)
-    return _join(x, y)
-
-
-def _join(x, y):
-    """Runs of arm a (``x``) and arm b (``y``) on the same index: ``*_a`` and ``*_b`` columns."""
-    cols = ["tail_position", "failed"]
-    return x[cols].add_suffix("_a").join(y[cols].add_suffix("_b"), how="inner").reset_index()
-
-
-def _stable(p):
-    """The both-stable pairs of ``p`` (:func:`_join`'s columns) with their ``delta`` = log r_a -
-    log r_b: the model's frame."""
-    ok = p[~p.failed_a & ~p.failed_b & (p.tail_position_a > 0) & (p.tail_position_b > 0)].copy()
-    ok["delta"] = np.log(ok.tail_position_a) - np.log(ok.tail_position_b)
-    return ok
-
-
-def model_frame(rows, tuned: dict, contrast: tuple[str, str], level: str):
-    """The model's frame of ``contrast`` (a, b) at ``level`` ("tuned", "default"): the
-    both-stable pairs of every pose source with ``delta``."""
-    best = {pose: {"best-adaptive": _best(tuned, pose, ADAPTIVE),
-                   "best-fixed": _best(tuned, pose, FIXED)} for pose in POSES}
-    p = _pairs_of(rows, *contrast, best)
-    return _stable(p[p.level == level])
-
-
-def _endpoints(p, mechs, trajs) -> dict:
-    """Per mechanism: paired divergence (McNemar over its trajectories and seeds) and the RMSE
-    on both-stable pairs per trajectory."""
-    out = {}
-    for m in mechs:
-        pm = p[p.mechanism == m]
-        if pm.empty:
-            continue
-        out[m] = {"divergence": rstats.mcnemar(pm.failed_a, pm.failed_b), "trajectories": {}}
-        for t in trajs:
-            q = pm[pm.trajectory == t]
-            if not q.empty:
-                out[m]["trajectories"][t] = rstats.pair_rmse(
-                    q.tail_position_a, q.failed_a, q.tail_position_b, q.failed_b)
-    return out
-
-
 def analyse(rows, tuned: dict) -> dict:
     """The record's statistics from the rows and the tuning (see the module)."""
     mechs = list(dict.fromkeys(rows.mechanism))
     trajs = list(dict.fromkeys(rows.trajectory))
-    best = {pose: {"best-adaptive": _best(tuned, pose, ADAPTIVE),
-                   "best-fixed": _best(tuned, pose, FIXED)} for pose in POSES}
+    best = {pose: {"best-adaptive": best_arm(tuned, pose, ADAPTIVE),
+                   "best-fixed": best_arm(tuned, pose, FIXED)} for pose in POSES}
     div = {}
     for (lv, pose, m, c), g in rows.groupby(["level", "pose", "mechanism", "controller"],
                                             sort=False):  # fmt: skip
@@ -459,23 +418,33 @@ def analyse(rows, tuned: dict) -> dict:
             "effort_stable_mean": float(eff.mean()) if len(eff) else None}  # fmt: skip
     contrasts = {}
     for a, b in CONTRASTS:
-        p = _pairs_of(rows, a, b, best)
+        p = pairs_of(rows, a, b, best)
         name = f"{a} - {b}"
         contrasts[name] = {}
         for lv in ("tuned", "default"):
             pl = p[p.level == lv]
-            contrasts[name][lv] = {pose: _endpoints(pl[pl.pose == pose], mechs, trajs)
+            contrasts[name][lv] = {pose: endpoints(pl[pl.pose == pose], mechs, trajs)
                                    for pose in POSES}  # fmt: skip
-            ok = _stable(pl)
+            ok = stable(pl)
             contrasts[name][lv]["model"] = (rstats.contrast_model(ok, apart=tuple(design.MUJOCO))
                                             if len(ok) > 2 else None)  # fmt: skip
-    pp = _paper_pairs(rows)
+        if (rows.level == "tuned-other").any():
+            contrasts[name]["restarts"] = {}
+            for la, lb in PAIRINGS:
+                pl = pairs_of(rows, a, b, best, (la, lb))
+                e = {pose: endpoints(pl[pl.pose == pose], mechs, trajs) for pose in POSES}
+                ok = stable(pl)
+                e["model"] = rstats.contrast_model(ok) if len(ok) > 2 else None
+                contrasts[name]["restarts"][f"{la} / {lb}"] = e
+    pp = paper_pairs(rows)
     paper = {"label": "the paper's asymmetric arm: IAPID-NN-DEKF on the filtered pose vs APID on "
-                      "the raw pose, defaults", "endpoints": _endpoints(pp, mechs, trajs)}
+                      "the raw pose, defaults", "endpoints": endpoints(pp, mechs, trajs)}
     return {"arms": list(tuned["raw"]), "poses": list(POSES), "mechanisms": mechs,
             "trajectories": trajs,
             "seeds": {lv: int(rows[rows.level == lv].seed.nunique()) for lv in
                       ("tuned", "default")},
+            "restart_pairings": [f"{la} / {lb}" for la, lb in PAIRINGS
+                                 if (rows.level == "tuned-other").any()],
             "best": best, "divergence": div, "contrasts": contrasts, "paper_arm": paper,
             "margins": {"relative": rstats.REL_MARGIN, "absolute": rstats.ABS_MARGIN},
             "alpha": rstats.ALPHA}  # fmt: skip
@@ -502,6 +471,13 @@ def tracking(rows, tuned: dict, record: dict) -> dict:
             "counts": alt["divergence"], "verdict_changes": changes}
 
 
+def _untuned(level: str) -> bool:
+    """Whether the arms of run level ``level`` share every setting (the defaults, and the rate
+    sensitivity: one ``mu`` for both arms), so a matched pair differs in the compared factor
+    alone; elsewhere each arm's tuned settings are its own."""
+    return level == "default" or level.startswith("rate-")
+
+
 def check(record: dict) -> None:
     """The record's claims hold: every compared pair of arms ran matched (the same scenarios'
     context, pose and shared settings but the compared factor and each arm's tuned settings),
@@ -515,11 +491,11 @@ def check(record: dict) -> None:
             for a, b, factor in design.COMPARED:
                 if a not in arms or b not in arms:  # (the quick level has fewer arms)
                     continue
-                allowed = free[a] | free[b] if level != "default" else set()
+                allowed = set() if _untuned(level) else free[a] | free[b]
                 design.matched(arms[a], arms[b], allowed, factor)
             assert all(e["filtered"] == (pose == "filtered") for e in arms.values()), pose
         for c in by_pose["raw"]:
-            allowed = free[c] if level != "default" else set()
+            allowed = set() if _untuned(level) else free[c]
             design.matched(by_pose["raw"][c], by_pose["filtered"][c], allowed, "pose")
     for lv in record["divergence"].values():
         for pose in lv.values():

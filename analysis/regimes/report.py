@@ -5,10 +5,13 @@ per pose source, as the ratio of the both-stable RMSEs ``exp(log r_a - log r_b)`
 
 On each pose source (the model's cell estimate):
 
-- ``"withheld"`` (tuned settings only): either arm's two tuning restarts disagree (the tuned
-  contrast would measure how well each arm's tuning went, not the arms), or the mechanism is a
-  MuJoCo robot (the arms were tuned on kinematic training plants, the PID family's tuned gains
-  do not track there, and the 2 ms physics step is not converged: the robot ladder's audit);
+- ``"withheld"`` (tuned settings only): the verdict is not the same word at every pairing of
+  the two arms' tuning restarts (each arm at its best and at its runner-up restart: four
+  pairings, the record's ``restart_pairings`` beside the tuned one; the tuned contrast would
+  otherwise measure how well each arm's tuning went, not the arms); in a record without the
+  runner-up runs, whenever either arm's restarts disagree; or the mechanism is a MuJoCo robot
+  (the arms were tuned on kinematic training plants, the PID family's tuned gains do not track
+  there, and the 2 ms physics step is not converged: the robot ladder's audit);
 - ``"costs (divergence)"``: ``a`` diverges significantly more often than ``b`` (exact McNemar at
   0.05); ``"pays (divergence)"``: ``b`` does;
 - ``"same within 5 %"``: else, the 95 % interval of the ratio lies inside ``[1/1.05, 1.05]``
@@ -38,10 +41,10 @@ MIN_PAIRS = 6
 IA = "iapid-nn-dekf - adaptive-pid"
 
 
-def _div(c: dict, mech: str, pose: str, setting: str = "tuned") -> int:
+def _div(c: dict, mech: str, pose: str, setting: str | None = "tuned") -> int:
     """+1 when a diverges significantly more often than b on ``mech`` and ``pose`` (exact
-    McNemar at 0.05), -1 when b does, 0 otherwise."""
-    d = c[setting][pose].get(mech, {}).get("divergence")
+    McNemar at 0.05), -1 when b does, 0 otherwise (``setting`` None: ``c`` is one level's)."""
+    d = (c if setting is None else c[setting])[pose].get(mech, {}).get("divergence")
     if not (d and d["p"] < 0.05):
         return 0
     return 1 if d["a_only"] > d["b_only"] else -1 if d["b_only"] > d["a_only"] else 0
@@ -91,10 +94,23 @@ def _withheld(record: dict, name: str, mech: str, pose: str) -> str | None:
     """Why the tuned verdict of ``name`` on ``mech`` / ``pose`` is withheld (None: it is not)."""
     if mech in record["design"].get("mujoco", ()):
         return "MuJoCo: tuned on kinematic plants; 2 ms physics not converged"
+    c = record["contrasts"][name]
+    if "restarts" in c:
+        words = [_word(c["tuned"], mech, pose)] + [_word(e, mech, pose)
+                                                   for e in c["restarts"].values()]
+        return (None if len(set(words)) == 1 else
+                "restart-dependent (best / best, best / other, other / best, other / other: "
+                + ", ".join(words) + ")")  # fmt: skip
     arms = record["tuning"]["arms"][pose]
     bad = [a for a in _arms_of(record, name, pose)
            if a in arms and not arms[a]["agreement"]["agree"]]  # fmt: skip
     return f"tuning restarts disagree ({', '.join(bad)})" if bad else None
+
+
+def _word(level: dict, mech: str, pose: str) -> str:
+    """The verdict word of one pairing's contrast entry (``level``: its poses and model)."""
+    model = level["model"] or {"cells": {}}
+    return classify(model["cells"].get(mech, {}).get(pose), _div(level, mech, pose, None))
 
 
 def _combine(poses: dict, mean: dict) -> dict:
@@ -142,7 +158,7 @@ def notes(record: dict) -> str:
     §7.8), then the details, their numbers in tables (Markdown; ``analysis.prose``'s rule)."""
     blocks = [*_answer(record), _reading(), _defaults(record), _coverage(record),
               _tracking(record), *_per_pose(record), _interactions(record), _tuning(record),
-              _extra(record), _recovery(record), _cost(record)]  # fmt: skip
+              _extra(record), _rates(record), _recovery(record), _cost(record)]  # fmt: skip
     return "\n\n".join(b for b in blocks if b)
 
 
@@ -181,10 +197,7 @@ def _answer(record: dict) -> list[str]:
            "rate does is withheld below."] if same else []),
         f"At the defaults the best adaptive arm ({ada}) against the best fixed one ({fix}): "
         f"{said(at_defaults(KEY))}.",
-        f"Tuned verdicts are withheld where an arm's two tuning restarts disagree ({n_dis} of "
-        f"{len(arms)} tuned arms, at {d['per_setting']} evaluations per free setting) and on "
-        "the MuJoCo robot.",
-        "The tuned ratios below are descriptive, not verdicts.",
+        *_tuned_answer(record, n_dis, len(arms), said),
     ]
     scope = [
         "Divergence at the tuned settings (10 m bound): "
@@ -197,6 +210,33 @@ def _answer(record: dict) -> list[str]:
         "effects of the arms) are retracted.",
     ]
     return [" ".join(answer), " ".join(scope)]
+
+
+def _tuned_answer(record: dict, n_dis: int, n_arms: int, said) -> list[str]:
+    """The answer's sentences on the tuned settings: how many verdicts survive the restarts."""
+    d, v = record["design"], record["verdict"]["mechanisms"]
+    head = (f"{n_dis} of {n_arms} tuned arms' two restarts disagree, at {d['per_setting']} "
+            f"evaluation{'s' if d['per_setting'] != 1 else ''} per free setting.")
+    if not record.get("restart_pairings"):
+        return [head, "Tuned verdicts are withheld there and on the MuJoCo robot.",
+                "The tuned ratios below are descriptive, not verdicts."]
+    kin = [m for m in v if m not in d.get("mujoco", ())]
+    cells = [(m, n, p) for m in kin for n in v[m] for p in v[m][n]["poses"]]
+    kept = [x for x in cells if v[x[0]][x[1]]["poses"][x[2]]["verdict"] != "withheld"]
+
+    def tuned(name: str) -> str:
+        by: dict = {}
+        for m in kin:
+            by.setdefault(v[m][name]["verdict"], []).append(m)
+        return said(by)
+
+    return [head,
+            "A tuned verdict stands only where it is the same at all four pairings of the two "
+            f"arms' best and runner-up restarts: {len(kept)} of {len(cells)} verdicts (mechanism, "
+            "contrast, pose source)"
+            + (" off the MuJoCo robot, where all are withheld." if d.get("mujoco") else "."),
+            f"Tuned, the best adaptive arm against the best fixed one: {tuned(KEY)}.",
+            f"Tuned, IAPID-NN-DEKF against APID: {tuned(IA)}."]
 
 
 def _reading() -> str:
@@ -332,17 +372,18 @@ def _interactions(record: dict) -> str:
             + (f"trajectory p = {tests['trajectory']['p']:.3g}, " if tests["trajectory"] else "")
             + f"mechanism p = {tests['mechanism']['p']:.3g} (cluster-robust Wald F tests over the "
             f"simulated plants, {model['clusters']} clusters; the fit's warnings: "
-            f"{len(model['warnings'])})." + _apart(tests.get("apart")))
+            f"{len(model['warnings'])})."
+            + _apart(tests.get("apart"), record["design"].get("mujoco_seeds")))
 
 
-def _apart(t: dict | None) -> str:
+def _apart(t: dict | None, seeds: int | None) -> str:
     """The MuJoCo cells' own interaction tests (not pooled with the simulated plants)."""
     if not t:
         return ""
     said = [f"{k.replace('_', ' ')} p = {t[k]['p']:.3g}" for k in ("pose_source", "mechanism")
             if t[k]]  # fmt: skip
-    return (f" The MuJoCo cells ({', '.join(t['mechanisms'])}; 3 seeds, withheld) are tested "
-            f"apart: {', '.join(said) or 'too few cells'}.")
+    return (f" The MuJoCo cells ({', '.join(t['mechanisms'])}; {seeds} seeds, withheld) are "
+            f"tested apart: {', '.join(said) or 'too few cells'}.")
 
 
 def _tuning(record: dict) -> str:
@@ -388,6 +429,34 @@ def _extra(record: dict) -> str:
     header = ["mechanism", *(["vs PID tuned on the mechanism"] if known else []), "paper's arm"]
     rows = [[m, *([known.get(m, "—")] if known else []), paper.get(m, "—")] for m in mechs]
     return "\n".join([" ".join(lead), "", *common.md_table(header, rows)])
+
+
+def _rates(record: dict) -> str:
+    """The SGD rate's sensitivity figure's numbers (``analysis.regimes.rates``)."""
+    from analysis.regimes import rates
+
+    rec = record.get("rates")
+    if not rec:
+        return ""
+    div = {}
+    for by in rec["poses"].values():
+        for per in by.values():
+            for x, e in per.items():
+                for c, v in e["divergence"].items():
+                    k, n = div.get((x, c), (0, 0))
+                    div[(x, c)] = (k + v["diverged"], n + v["n"])
+    said = "; ".join(f"x{m:g}: " + ", ".join(f"{_lbl(c)} {div[(f'x{m:g}', c)][0]} of "
+                                          f"{div[(f'x{m:g}', c)][1]}" for c in rec["arms"])
+                     for m in rec["rates"] if (f"x{m:g}", rec["arms"][0]) in div)  # fmt: skip
+    poses = list(rec["poses"])
+    return "\n".join([
+        "**The SGD rate, a sensitivity and not a verdict.** APID and IAPID-NN-DEKF at the "
+        "defaults but the rate, both on the same pose, at multiples of the default rate. "
+        f"Diverged runs: {said}. The ratio is IAPID / APID on the both-stable pairs, pooled over "
+        "trajectories and seeds with a t interval (descriptive).", "",
+        *common.md_table(["mechanism", "rate", *[f"{p}: ratio [95 %] (pairs); diverged IAPID / "
+                                                 "APID" for p in poses]],
+                         rates.rows_of_table(rec))])  # fmt: skip
 
 
 def _recovery(record: dict) -> str:

@@ -436,9 +436,11 @@ def summarise(out: str | Path, spec: Spec) -> dict:
         d = ok[ok.controller == c]
         lines.append(f"| {c} | {len(d)} | {d.rmse_position.mean():.4g} | "
                      f"{d.rmse_position.std():.3g} | {d.tail_position.mean():.4g} |")
-    n = max(1, len(spec.factors))
+    shown_factors = [f for f in spec.factors if ok[f.path].astype(str).nunique() > 1]
+    n = max(1, len(shown_factors))  # (a single-level factor has no main effect to draw)
     fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 3.6), squeeze=False, layout="constrained")
-    for ax, f in zip(axes[0], spec.factors, strict=False):
+    panels = iter(axes[0])
+    for f in spec.factors:
         keys = _levels(ok[f.path])
         means = ok.groupby([keys, ok.controller], observed=True).rmse_position.mean().unstack()
         lines += ["", f"Main effect of `{f.path}` (mean position RMSE [m]):", "",
@@ -447,13 +449,16 @@ def summarise(out: str | Path, spec: Spec) -> dict:
         for level, row in means.iterrows():
             shown = f"{level:.4g}" if isinstance(level, float) else str(level)
             lines.append(f"| {shown} | " + " | ".join(f"{v:.4g}" for v in row) + " |")
+        if f not in shown_factors:
+            continue
+        ax = next(panels)
         for c in means.columns:
             ax.plot(range(len(means)) if means.index.dtype == object else means.index,
                     means[c], "o-", color=controllers.colour(c), label=controllers.label(c))
         ax.set(xlabel=f.path, ylabel="mean position RMSE [m]")
         if f.log:
             ax.set_xscale("log")
-    if spec.factors:
+    if shown_factors:
         axes[0, 0].legend(fontsize=8)
     else:
         axes[0, 0].set_axis_off()
