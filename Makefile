@@ -47,10 +47,10 @@ calibration: $(STAMP)
 	$(BIN)/python -m analysis.calibration --out paper --full --workers 2
 	$(BIN)/wmr report --out paper
 
-# The regime study in full (issue 22: every arm tuned with 10 evaluations per free setting per
-# restart, 20 seeds everywhere, 10 on the MuJoCo robot; its stores resume).  The committed record
-# is the smaller "record" level (`python -m analysis.regimes --level record`, ~20 min here);
-# `make reproduce` only re-renders the committed record.
+# The regime study in full (issue 22: every arm tuned with 30 evaluations per free setting per
+# restart, each tuned verdict checked at the runner-up restart, 20 seeds everywhere, 10 on the
+# MuJoCo robot, the SGD rate's sensitivity runs; its stores resume).  `make reproduce` only
+# re-renders the committed record.
 regimes: $(STAMP)
 	PYTHONPATH=$(CURDIR) $(BIN)/python -m analysis.regimes --out paper --level full
 	$(BIN)/wmr report --out paper

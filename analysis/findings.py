@@ -196,11 +196,27 @@ def regimes(reg: dict) -> Finding:
             f"{ad} against {fx} pays on " + (", ".join(pays) or "none")
             + (f" (RMSE ratio {span(ba, pays)})" if pays else "") + " and costs on "
             + (", ".join(costs) or "none") + ". "
-            f"Tuned verdicts are withheld ({n_withheld} of {sum(len(e) for e in mech.values())}) "
-            f"because the tuning's restarts disagree for {n_dis} of {len(arms)} arms and the "
-            "MuJoCo mechanisms were tuned on kinematic plants.")
+            + (_tuned_sentence(reg, mech, ba) if reg.get("restart_pairings") else
+               f"Tuned verdicts are withheld ({n_withheld} of "
+               f"{sum(len(e) for e in mech.values())}) because the tuning's restarts disagree "
+               f"for {n_dis} of {len(arms)} arms and the MuJoCo mechanisms were tuned on "
+               "kinematic plants."))
     return Finding("When does adaptation pay, and against what?", text, TITLE,
                    reg["figures"][0] if reg.get("figures") else None)
+
+
+def _tuned_sentence(reg: dict, mech: dict, ba: str) -> str:
+    """The tuned best-adaptive - best-fixed verdicts that hold at every pairing of the two arms'
+    tuning restarts, and how many tuned verdicts hold off the MuJoCo robot."""
+    kin = [m for m in mech if m not in reg["design"].get("mujoco", ())]
+    by: dict = {}
+    for m in kin:
+        by.setdefault(mech[m][ba]["verdict"], []).append(m)
+    cells = [v for m in kin for e in mech[m].values() for v in e["poses"].values()]
+    kept = sum(v["verdict"] != "withheld" for v in cells)
+    return ("Tuned, the same pair: " + "; ".join(f"{w} on {', '.join(ms)}" for w, ms in by.items())
+            + f" ({kept} of {len(cells)} tuned verdicts off the MuJoCo robot hold at every "
+            "pairing of the two arms' tuning restarts; the MuJoCo robot's are withheld).")
 
 
 def calibration(cal: dict) -> Finding:

@@ -189,16 +189,21 @@ def _answer(record: dict) -> list[str]:
     arms = [t for p in record["tuning"]["arms"].values() for t in p.values()]
     n_dis = sum(not t["agreement"]["agree"] for t in arms)
     same = set(at_defaults(IA)["same within 5 %"]) == set(d["mechanisms"])
-    answer = [
-        "**The answer.** At the shared default settings IAPID-NN-DEKF and APID differ only in "
-        "the Jacobian.",
-        f"There, IAPID-NN-DEKF against APID on the same pose: {said(at_defaults(IA))}.",
-        *(["At the paper's SGD rate the identified Jacobian neither pays nor costs; what a tuned "
-           "rate does is withheld below."] if same else []),
-        f"At the defaults the best adaptive arm ({ada}) against the best fixed one ({fix}): "
-        f"{said(at_defaults(KEY))}.",
-        *_tuned_answer(record, n_dis, len(arms), said),
-    ]
+    if record.get("restart_pairings"):
+        answer = _answer_pairings(record, ada, fix, n_dis, len(arms))
+    else:  # a record without the runner-up restarts' runs (the earlier rule)
+        answer = [
+            "**The answer.** At the shared default settings IAPID-NN-DEKF and APID differ only "
+            "in the Jacobian.",
+            f"There, IAPID-NN-DEKF against APID on the same pose: {said(at_defaults(IA))}.",
+            *(["At the paper's SGD rate the identified Jacobian neither pays nor costs; what a "
+               "tuned rate does is withheld below."] if same else []),
+            f"At the defaults the best adaptive arm ({ada}) against the best fixed one ({fix}): "
+            f"{said(at_defaults(KEY))}.",
+            f"Tuned verdicts are withheld where an arm's two tuning restarts disagree ({n_dis} "
+            f"of {len(arms)} tuned arms, at {d['per_setting']} evaluations per free setting) "
+            "and on the MuJoCo robot.",
+            "The tuned ratios below are descriptive, not verdicts."]
     scope = [
         "Divergence at the tuned settings (10 m bound): "
         + (", ".join(f"{_lbl(c)} {tot[c][0]} of {tot[c][1]}" for c in order if tot[c][0])
@@ -212,31 +217,37 @@ def _answer(record: dict) -> list[str]:
     return [" ".join(answer), " ".join(scope)]
 
 
-def _tuned_answer(record: dict, n_dis: int, n_arms: int, said) -> list[str]:
-    """The answer's sentences on the tuned settings: how many verdicts survive the restarts."""
+def _answer_pairings(record: dict, ada: str, fix: str, n_dis: int, n_arms: int) -> list[str]:
+    """The answer in five sentences for a record with the runner-up restarts' runs: the tuned
+    verdicts (with their ratios), the defaults', and how many tuned verdicts the restarts
+    leave standing."""
     d, v = record["design"], record["verdict"]["mechanisms"]
-    head = (f"{n_dis} of {n_arms} tuned arms' two restarts disagree, at {d['per_setting']} "
-            f"evaluation{'s' if d['per_setting'] != 1 else ''} per free setting.")
-    if not record.get("restart_pairings"):
-        return [head, "Tuned verdicts are withheld there and on the MuJoCo robot.",
-                "The tuned ratios below are descriptive, not verdicts."]
     kin = [m for m in v if m not in d.get("mujoco", ())]
-    cells = [(m, n, p) for m in kin for n in v[m] for p in v[m][n]["poses"]]
-    kept = [x for x in cells if v[x[0]][x[1]]["poses"][x[2]]["verdict"] != "withheld"]
 
-    def tuned(name: str) -> str:
+    def words(name: str, setting: str | None) -> str:
         by: dict = {}
         for m in kin:
-            by.setdefault(v[m][name]["verdict"], []).append(m)
-        return said(by)
+            e = v[m][name] if setting is None else v[m][name].get("default")
+            if not e:
+                continue
+            r = "" if e["ratio"] is None or e["verdict"] == "withheld" else f" ({_ci(e)})"
+            by.setdefault(e["verdict"], []).append(m + r)
+        return "; ".join(f"{w} on {', '.join(ms)}" for w, ms in by.items()) or "none"
 
-    return [head,
-            "A tuned verdict stands only where it is the same at all four pairings of the two "
-            f"arms' best and runner-up restarts: {len(kept)} of {len(cells)} verdicts (mechanism, "
-            "contrast, pose source)"
-            + (" off the MuJoCo robot, where all are withheld." if d.get("mujoco") else "."),
-            f"Tuned, the best adaptive arm against the best fixed one: {tuned(KEY)}.",
-            f"Tuned, IAPID-NN-DEKF against APID: {tuned(IA)}."]
+    cells = [(m, n, p) for m in kin for n in v[m] for p in v[m][n]["poses"]]
+    kept = sum(v[m][n]["poses"][p]["verdict"] != "withheld" for m, n, p in cells)
+    mj = " off the MuJoCo robot, where all are withheld" if d.get("mujoco") else ""
+    return [
+        f"**The answer.** Tuned, the best adaptive arm ({ada}) against the best fixed one "
+        f"({fix}): {words(KEY, None)}.",
+        f"Tuned, IAPID-NN-DEKF against APID on the same pose: {words(IA, None)}.",
+        "At the shared defaults, where the two differ only in the Jacobian, IAPID-NN-DEKF "
+        f"against APID: {words(IA, 'default')}.",
+        f"At the defaults, {ada} against {fix}: {words(KEY, 'default')}.",
+        "A tuned verdict stands only where all four pairings of the two arms' best and "
+        f"runner-up tuning restarts give it: {kept} of {len(cells)} do{mj} ({n_dis} of "
+        f"{n_arms} arms' restarts disagree at {d['per_setting']} evaluations per free "
+        "setting)."]
 
 
 def _reading() -> str:
