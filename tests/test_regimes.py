@@ -443,3 +443,63 @@ def test_a_tuned_verdict_stands_only_if_every_pairing_of_the_restarts_gives_it()
     assert v2["verdict"] == "withheld" and "costs" in v2["withheld"]
     assert report.verdicts(record)["mechanisms"]["mujoco"][ia]["poses"]["raw"]["verdict"] == \
         "withheld"  # MuJoCo stays withheld
+
+
+# ---------------------------------------------------------------------------------------------
+# The SGD rate's sensitivity runs
+
+
+def test_the_rate_levels_scale_the_default_mu_the_same_for_both_arms():
+    from dataclasses import asdict
+
+    from analysis.regimes import rates
+    from wmr import controllers
+
+    for m in rates.RATES:
+        t = rates.tables(m)
+        assert set(t) == set(rates.ARMS)
+        for c in rates.ARMS:
+            mu = asdict(controllers.get(c).Settings())["mu"]
+            assert t[c]["mu"] == pytest.approx([m * x for x in mu], rel=1e-15)
+        assert t[rates.ARMS[0]] == t[rates.ARMS[1]]  # one rate: the arms differ in the Jacobian
+
+
+def test_the_rate_analysis_recovers_a_planted_ratio_and_counts_divergence():
+    """Synthetic rows: IAPID's RMSE a planted 1.3 times APID's (log-normal noise) on the
+    both-stable pairs, 3 of APID's 40 runs diverged at x1000 only."""
+    from analysis.regimes import rates
+
+    rng = np.random.default_rng(5)
+    rows = []
+    for lv in (rates.level(m) for m in rates.RATES):
+        for t in ("lemniscate", "circle"):
+            for s in range(20):
+                base = 0.02 * math.exp(rng.normal(0, 0.3))
+                for c, r in (("adaptive-pid", base), ("iapid-nn-dekf",
+                                                      base * 1.3 * math.exp(rng.normal(0, 0.02)))):
+                    failed = c == "adaptive-pid" and lv == "rate-x1000" and s < 3 and t == "circle"
+                    rows.append({"level": lv, "pose": "raw", "mechanism": "ideal",
+                                 "trajectory": t, "seed": s, "controller": c,
+                                 "tail_position": r, "failed": failed})  # fmt: skip
+    rec = rates.analyse(pd.DataFrame(rows))
+    for x in ("x1", "x10", "x100", "x1000"):
+        e = rec["poses"]["raw"]["ideal"][x]
+        h = math.log(e["ratio_ci"][1] / e["ratio_ci"][0]) / 2  # the interval's half-width
+        assert abs(math.log(e["ratio"] / 1.3)) < 2 * h < 0.02  # (a 95 % interval misses 1 in 20)
+        k = 3 if x == "x1000" else 0
+        assert e["divergence"]["adaptive-pid"]["diverged"] == k
+        assert e["divergence"]["iapid-nn-dekf"]["diverged"] == 0 and e["n_stable"] == 40 - k
+        assert e["paired"]["b_only"] == k
+
+
+@pytest.mark.slow
+def test_the_rate_levels_run_matched_and_a_differing_rate_fails_the_check(quick):
+    """At a rate level the two arms share every setting (one mu): the check refuses a record
+    whose IAPID ran at another rate than APID there."""
+    record, _ = quick
+    assert record["rates"] and set(record["rates"]["poses"]) == set(regimes.POSES)
+    bad = json.loads(json.dumps(record))
+    e = bad["arms_run"]["rate-x10"]["raw"]["iapid-nn-dekf"]
+    e["settings"]["mu"] = [2 * x for x in e["settings"]["mu"]]
+    with pytest.raises(AssertionError):
+        regimes.check(bad)

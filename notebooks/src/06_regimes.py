@@ -15,7 +15,7 @@ import json
 from pathlib import Path
 
 from analysis import tuning
-from analysis.regimes import design
+from analysis.regimes import design, rates, report
 from analysis.regimes import stats as rstats
 from wmr import controllers
 from wmr.engine import Job, run_job
@@ -99,3 +99,30 @@ if "verdict" in record and "arms_run" in record:
             print(f"{m:<24} {name:<30} tuned: {x['verdict']}{ci}; defaults: {dflt}")
 else:
     print("no record of the matched design (run `python -m analysis.regimes`)")
+# %% [md]
+# ## A tuned verdict against the tuning's own spread
+#
+# Two CMA-ES restarts per arm rarely end on the same objective. The study runs every arm at its
+# best and at its runner-up restart ("tuned-other"), so a tuned contrast can be read at the four
+# pairings of the two arms' restarts; a tuned verdict stands only where all four give the same
+# word. IAPID-NN-DEKF against APID, per mechanism and pose source:
+# %%
+if "restart_pairings" in record:
+    c = record["contrasts"]["iapid-nn-dekf - adaptive-pid"]
+    for m in record["mechanisms"]:
+        if m in record["design"]["mujoco"]:
+            continue
+        for pose in record["poses"]:
+            said = [report._word(c["tuned"], m, pose)]
+            said += [report._word(e, m, pose) for e in c["restarts"].values()]
+            v = record["verdict"]["mechanisms"][m]["iapid-nn-dekf - adaptive-pid"]["poses"][pose]
+            print(f"{m:<24} {pose:<8} pairings: {', '.join(said):<70} -> {v['verdict']}")
+# %% [md]
+# ## The SGD rate as a sensitivity
+#
+# The retired rate grid let x1000 pick winners. Here the rate is one of each arm's tuned
+# settings, and the x1-x1000 readings are a sensitivity figure with both arms on the same pose:
+# %%
+if record.get("rates"):
+    rates.figure(record["rates"])
+    plt.show()
