@@ -179,9 +179,11 @@ def regimes(reg: dict) -> Finding:
         r = [mech[m][contrast]["default"]["ratio"] for m in ms]
         return f"{min(r):.2f}–{max(r):.2f}"
 
-    best = reg["best"]["raw"]
-    ad, fx = (controllers.label(best[k]) for k in ("best-adaptive", "best-fixed"))
+    from analysis.regimes.report import _best_label
+
+    ad, fx = (_best_label(reg, k) for k in ("best-adaptive", "best-fixed"))
     same = at_defaults(ia, "same within 5 %")
+    same_pid = at_defaults("adaptive-pid - pid", "same within 5 %")
     n_default = sum(1 for v in mech.values() if "default" in v[ia])
     pays, costs = at_defaults(ba, "pays"), at_defaults(ba, "costs")
     arms = [t for per in reg["tuning"]["arms"].values() for t in per.values()]
@@ -190,7 +192,8 @@ def regimes(reg: dict) -> Finding:
     text = (f"At the same default settings (the paper's SGD rate) IAPID-NN-DEKF and APID, which "
             f"then differ only in the Jacobian, are the same within 5 % on {len(same)} of "
             f"{n_default} simulated plants"
-            + (": at that rate the identified Jacobian changes nothing. "
+            + (f", and APID and the fixed PID on {len(same_pid)}: at that rate the adaptation "
+               "itself changes little. "
                if len(same) == n_default else ". ")
             +
             f"{ad} against {fx} pays on " + (", ".join(pays) or "none")

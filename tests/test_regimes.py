@@ -401,13 +401,17 @@ def test_a_committed_recovery_cell_is_its_runs():
 
 
 def test_a_tuned_verdict_is_withheld_when_a_tuning_did_not_converge():
-    """The audit's rule: a tuned contrast whose arms' restarts disagree measures the tuning,
-    so its verdict is withheld; the same record with agreeing restarts gets a verdict, and the
-    defaults' verdict stands beside it either way."""
+    """The earlier rule, kept for records without the runner-up restarts' runs: a tuned
+    contrast whose arms' restarts disagree measures the tuning, so its verdict is withheld; the
+    same record with agreeing restarts gets a verdict, and the defaults' verdict stands beside
+    it either way."""
     import copy
 
     record = json.loads((Path(__file__).resolve().parents[1] / "paper" / "results"
                          / "regimes.json").read_text())  # fmt: skip
+    for c in record["contrasts"].values():  # a record without the runner-up restarts' runs
+        c.pop("restarts", None)
+    record.pop("restart_pairings", None)
     ia = "iapid-nn-dekf - adaptive-pid"
     arms = record["tuning"]["arms"]["raw"]
     assert not arms["iapid-nn-dekf"]["agreement"]["agree"]  # as committed
@@ -435,12 +439,13 @@ def test_a_tuned_verdict_stands_only_if_every_pairing_of_the_restarts_gives_it()
     c["restarts"] = {k: copy.deepcopy(c["tuned"]) for k in
                      ("tuned / tuned-other", "tuned-other / tuned", "tuned-other / tuned-other")}
     v = report.verdicts(record)["mechanisms"]["ideal"][ia]["poses"]["raw"]
-    assert v["verdict"] not in ("withheld", "costs") and v["withheld"] is None  # as committed
+    assert v["verdict"] != "withheld" and v["withheld"] is None  # restarts disagree, as committed
     cell = c["restarts"]["tuned-other / tuned"]["model"]["cells"]["ideal"]["raw"]
     lo, hi = cell["ratio_ci"]
-    cell["ratio_ci"] = [hi + 0.5, hi + 1.0]  # that pairing says "costs"
+    other = "pays" if v["verdict"] == "costs" else "costs"  # a word that pairing now says
+    cell["ratio_ci"] = [lo * 0.3, lo * 0.5] if other == "pays" else [hi + 0.5, hi + 1.0]
     v2 = report.verdicts(record)["mechanisms"]["ideal"][ia]["poses"]["raw"]
-    assert v2["verdict"] == "withheld" and "costs" in v2["withheld"]
+    assert v2["verdict"] == "withheld" and other in v2["withheld"]
     assert report.verdicts(record)["mechanisms"]["mujoco"][ia]["poses"]["raw"]["verdict"] == \
         "withheld"  # MuJoCo stays withheld
 
@@ -503,3 +508,21 @@ def test_the_rate_levels_run_matched_and_a_differing_rate_fails_the_check(quick)
     e["settings"]["mu"] = [2 * x for x in e["settings"]["mu"]]
     with pytest.raises(AssertionError):
         regimes.check(bad)
+
+
+def test_a_best_arm_the_tuning_did_not_tell_apart_withholds_its_contrast():
+    """Best adaptive - best fixed is withheld where the runner-up arm's training objective is
+    closer to the best arm's than the two arms' restarts are to each other, and stands (as far
+    as this clause goes) once the margin exceeds the spread."""
+    import copy
+
+    record = json.loads(RECORD.read_text())
+    arms = record["tuning"]["arms"]["raw"]
+    for c, f in (("adaptive-bsc", 0.10), ("adaptive-nn", 0.1005), ("adaptive-pid", 0.3),
+                 ("iapid-nn-dekf", 0.3), ("backstepping", 0.10), ("pid", 0.3)):
+        arms[c]["objective"] = f
+        arms[c]["agreement"]["spread"] = 0.001
+    assert "best arm not chosen" in report._selection_too_close(record, "raw")
+    apart = copy.deepcopy(record)
+    apart["tuning"]["arms"]["raw"]["adaptive-nn"]["objective"] = 0.2
+    assert report._selection_too_close(apart, "raw") is None

@@ -95,6 +95,9 @@ def _withheld(record: dict, name: str, mech: str, pose: str) -> str | None:
     if mech in record["design"].get("mujoco", ()):
         return "MuJoCo: tuned on kinematic plants; 2 ms physics not converged"
     c = record["contrasts"][name]
+    close = _selection_too_close(record, pose) if name == KEY else None
+    if close:
+        return close
     if "restarts" in c:
         words = [_word(c["tuned"], mech, pose)] + [_word(e, mech, pose)
                                                    for e in c["restarts"].values()]
@@ -107,6 +110,28 @@ def _withheld(record: dict, name: str, mech: str, pose: str) -> str | None:
     return f"tuning restarts disagree ({', '.join(bad)})" if bad else None
 
 
+def _selection_too_close(record: dict, pose: str) -> str | None:
+    """Why the best adaptive or best fixed arm on ``pose`` is not a choice the tuning made (the
+    runner-up arm's training objective is closer to the best's than either arm's own restarts
+    are to each other), or None; only in a record with the runner-up restarts' runs."""
+    if not record.get("restart_pairings"):
+        return None
+    from analysis.regimes.pairs import ADAPTIVE, FIXED
+
+    arms = record["tuning"]["arms"][pose]
+    for family in (ADAPTIVE, FIXED):
+        ranked = sorted((c for c in family if c in arms), key=lambda c: arms[c]["objective"])
+        if len(ranked) < 2:
+            continue
+        a, b = ranked[:2]
+        margin = arms[b]["objective"] - arms[a]["objective"]
+        spread = max(arms[a]["agreement"]["spread"], arms[b]["agreement"]["spread"])
+        if margin < spread:
+            return (f"best arm not chosen by the tuning ({_lbl(a)} over {_lbl(b)} by {margin:.4f}"
+                    f", restart spread {spread:.4f})")
+    return None
+
+
 def _word(level: dict, mech: str, pose: str) -> str:
     """The verdict word of one pairing's contrast entry (``level``: its poses and model)."""
     model = level["model"] or {"cells": {}}
@@ -115,7 +140,15 @@ def _word(level: dict, mech: str, pose: str) -> str:
 
 def _combine(poses: dict, mean: dict) -> dict:
     words = {v["verdict"] for v in poses.values()}
-    mean["verdict"] = words.pop() if len(words) == 1 else "depends on the pose source"
+    held = [p for p, v in poses.items() if v["verdict"] == "withheld"]
+    if len(words) == 1:
+        mean["verdict"] = words.pop()
+    elif len(words) == 2 and held:  # one word stands, on the other pose source it is withheld
+        w = (words - {"withheld"}).pop()
+        mean["verdict"] = f"{w} ({', '.join(p for p in poses if p not in held)}; withheld on " \
+                          f"{', '.join(held)})"
+    else:
+        mean["verdict"] = "depends on the pose source"
     mean["diverges_more"] = any(v["diverges_more"] for v in poses.values())
     return {**mean, "poses": poses}
 
@@ -179,6 +212,8 @@ def _answer(record: dict) -> list[str]:
     tot = {}
     for pose in record["poses"]:
         for _m, arms in record["divergence"]["tuned"][pose].items():
+            if _m in record["design"].get("mujoco", ()):
+                continue  # the kinematic plants' (the MuJoCo robot's are in the table)
             for c, x in arms.items():
                 k, n = tot.get(c, (0, 0))
                 tot[c] = (k + x["diverged"], n + x["n"])
@@ -190,7 +225,7 @@ def _answer(record: dict) -> list[str]:
     n_dis = sum(not t["agreement"]["agree"] for t in arms)
     same = set(at_defaults(IA)["same within 5 %"]) == set(d["mechanisms"])
     if record.get("restart_pairings"):
-        answer = _answer_pairings(record, ada, fix, n_dis, len(arms))
+        answer = _answer_pairings(record, n_dis, len(arms))
     else:  # a record without the runner-up restarts' runs (the earlier rule)
         answer = [
             "**The answer.** At the shared default settings IAPID-NN-DEKF and APID differ only "
@@ -205,7 +240,7 @@ def _answer(record: dict) -> list[str]:
             "and on the MuJoCo robot.",
             "The tuned ratios below are descriptive, not verdicts."]
     scope = [
-        "Divergence at the tuned settings (10 m bound): "
+        "Divergence at the tuned settings on the kinematic plants (10 m bound): "
         + (", ".join(f"{_lbl(c)} {tot[c][0]} of {tot[c][1]}" for c in order if tot[c][0])
            or "none") + ".",
         f"Level '{record['level']}': {s['tuned']} seeds at the tuned settings "
@@ -217,35 +252,66 @@ def _answer(record: dict) -> list[str]:
     return [" ".join(answer), " ".join(scope)]
 
 
-def _answer_pairings(record: dict, ada: str, fix: str, n_dis: int, n_arms: int) -> list[str]:
+def _best_label(record: dict, key: str) -> str:
+    """The best arm ``key`` ("best-adaptive", "best-fixed") by pose source, named once if the
+    same on both."""
+    by = {p: _lbl(record["best"][p][key]) for p in record["poses"]}
+    if len(set(by.values())) == 1:
+        return next(iter(by.values()))
+    return " / ".join(f"{c} ({p})" for p, c in by.items())
+
+
+def _standing(v: dict, kin: list[str], name: str, setting: str | None) -> str:
+    """The verdicts of ``name`` that stand (not withheld), grouped by word: a mechanism named
+    once when both pose sources agree, else per pose source, with the range of the cells'
+    ratios; the withheld ones counted."""
+    groups: dict = {}
+    for m in kin:
+        e = v[m][name] if setting is None else v[m][name].get("default")
+        if not e:
+            continue
+        poses = e["poses"]
+        if len({x["verdict"] for x in poses.values()}) == 1:
+            w = next(iter(poses.values()))["verdict"]
+            groups.setdefault(w, []).append((m, [x["ratio"] for x in poses.values()]))
+        else:
+            for p, x in poses.items():
+                groups.setdefault(x["verdict"], []).append((f"{m} ({p})", [x["ratio"]]))
+    parts = []
+    for w, items in groups.items():
+        if w == "withheld":
+            continue
+        rs = [r for _, rr in items for r in rr if r is not None]
+        rng = (f" (ratio {min(rs):.2f}" + (f"–{max(rs):.2f})" if max(rs) != min(rs) else ")")
+               if rs and "divergence" not in w else "")  # fmt: skip
+        parts.append(f"{w} on {', '.join(lbl for lbl, _ in items)}{rng}")
+    held = groups.get("withheld", [])
+    n_held = sum(len(rr) for _, rr in held)
+    return ("; ".join(parts) or "no verdict stands") + (
+        f"; {n_held} (mechanism, pose source) verdicts withheld" if n_held else "")
+
+
+def _answer_pairings(record: dict, n_dis: int, n_arms: int) -> list[str]:
     """The answer in five sentences for a record with the runner-up restarts' runs: the tuned
-    verdicts (with their ratios), the defaults', and how many tuned verdicts the restarts
-    leave standing."""
+    verdicts that stand (with their ratios), the defaults', and how many tuned verdicts the
+    restarts leave standing."""
     d, v = record["design"], record["verdict"]["mechanisms"]
     kin = [m for m in v if m not in d.get("mujoco", ())]
-
-    def words(name: str, setting: str | None) -> str:
-        by: dict = {}
-        for m in kin:
-            e = v[m][name] if setting is None else v[m][name].get("default")
-            if not e:
-                continue
-            r = "" if e["ratio"] is None or e["verdict"] == "withheld" else f" ({_ci(e)})"
-            by.setdefault(e["verdict"], []).append(m + r)
-        return "; ".join(f"{w} on {', '.join(ms)}" for w, ms in by.items()) or "none"
-
+    ada, fix = _best_label(record, "best-adaptive"), _best_label(record, "best-fixed")
     cells = [(m, n, p) for m in kin for n in v[m] for p in v[m][n]["poses"]]
     kept = sum(v[m][n]["poses"][p]["verdict"] != "withheld" for m, n, p in cells)
     mj = " off the MuJoCo robot, where all are withheld" if d.get("mujoco") else ""
     return [
         f"**The answer.** Tuned, the best adaptive arm ({ada}) against the best fixed one "
-        f"({fix}): {words(KEY, None)}.",
-        f"Tuned, IAPID-NN-DEKF against APID on the same pose: {words(IA, None)}.",
+        f"({fix}): {_standing(v, kin, KEY, None)}.",
+        f"Tuned, IAPID-NN-DEKF against APID on the same pose: {_standing(v, kin, IA, None)}.",
         "At the shared defaults, where the two differ only in the Jacobian, IAPID-NN-DEKF "
-        f"against APID: {words(IA, 'default')}.",
-        f"At the defaults, {ada} against {fix}: {words(KEY, 'default')}.",
+        f"against APID: {_standing(v, kin, IA, 'default')}; APID against the fixed PID there: "
+        f"{_standing(v, kin, 'adaptive-pid - pid', 'default')}.",
+        f"At the defaults, {ada} against {fix}: {_standing(v, kin, KEY, 'default')}.",
         "A tuned verdict stands only where all four pairings of the two arms' best and "
-        f"runner-up tuning restarts give it: {kept} of {len(cells)} do{mj} ({n_dis} of "
+        "runner-up tuning restarts give it, and the best arms only where the tuning told them "
+        f"from the runner-up arm: {kept} of {len(cells)} do{mj} ({n_dis} of "
         f"{n_arms} arms' restarts disagree at {d['per_setting']} evaluations per free "
         "setting)."]
 
