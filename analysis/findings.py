@@ -209,17 +209,13 @@ def regimes(reg: dict) -> Finding:
 
 
 def _tuned_sentence(reg: dict, mech: dict, ba: str) -> str:
-    """The tuned best-adaptive - best-fixed verdicts that hold at every pairing of the two arms'
-    tuning restarts, and how many tuned verdicts hold off the MuJoCo robot."""
+    """How many tuned verdicts off the MuJoCo robot hold at every pairing of the two arms'
+    tuning restarts (and, for the best arms, their choice)."""
     kin = [m for m in mech if m not in reg["design"].get("mujoco", ())]
-    by: dict = {}
-    for m in kin:
-        by.setdefault(mech[m][ba]["verdict"], []).append(m)
     cells = [v for m in kin for e in mech[m].values() for v in e["poses"].values()]
     kept = sum(v["verdict"] != "withheld" for v in cells)
-    return ("Tuned, the same pair: " + "; ".join(f"{w} on {', '.join(ms)}" for w, ms in by.items())
-            + f" ({kept} of {len(cells)} tuned verdicts off the MuJoCo robot hold at every "
-            "pairing of the two arms' tuning restarts; the MuJoCo robot's are withheld).")
+    return (f"Tuned, only {kept} of {len(cells)} verdicts off the MuJoCo robot survive the "
+            "tuning's restarts and the choice of the best arms.")
 
 
 def calibration(cal: dict) -> Finding:
