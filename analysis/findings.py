@@ -179,9 +179,9 @@ def regimes(reg: dict) -> Finding:
         r = [mech[m][contrast]["default"]["ratio"] for m in ms]
         return f"{min(r):.2f}–{max(r):.2f}"
 
-    from analysis.regimes.report import _best_label
+    from analysis.regimes.pairs import best_label
 
-    ad, fx = (_best_label(reg, k) for k in ("best-adaptive", "best-fixed"))
+    ad, fx = (best_label(reg, k) for k in ("best-adaptive", "best-fixed"))
     same = at_defaults(ia, "same within 5 %")
     same_pid = at_defaults("adaptive-pid - pid", "same within 5 %")
     n_default = sum(1 for v in mech.values() if "default" in v[ia])

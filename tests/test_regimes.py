@@ -15,7 +15,7 @@ import pytest
 
 from analysis import prose, regimes, tuning
 from analysis.regimes import coverage as rcov
-from analysis.regimes import design, report
+from analysis.regimes import design, pairs, report
 from analysis.regimes import stats as rstats
 
 PAPER = Path(__file__).resolve().parents[1] / "paper"
@@ -522,7 +522,7 @@ def test_a_best_arm_the_tuning_did_not_tell_apart_withholds_its_contrast():
                  ("iapid-nn-dekf", 0.3), ("backstepping", 0.10), ("pid", 0.3)):
         arms[c]["objective"] = f
         arms[c]["agreement"]["spread"] = 0.001
-    assert "best arm not chosen" in report._selection_too_close(record, "raw")
+    assert "best arm not chosen" in pairs.selection_too_close(record, "raw")
     apart = copy.deepcopy(record)
     apart["tuning"]["arms"]["raw"]["adaptive-nn"]["objective"] = 0.2
-    assert report._selection_too_close(apart, "raw") is None
+    assert pairs.selection_too_close(apart, "raw") is None

@@ -7,9 +7,11 @@ from __future__ import annotations
 import numpy as np
 
 from analysis.regimes import stats as rstats
+from wmr import controllers
 
 __all__ = ["FIXED", "ADAPTIVE", "POSES", "PAIRINGS", "best_arm", "pairs_of", "paper_pairs",
-           "join", "stable", "model_frame", "endpoints"]
+           "join", "stable", "model_frame", "endpoints", "best_label",
+           "selection_too_close"]
 
 FIXED = ("pid", "backstepping")
 ADAPTIVE = ("adaptive-pid", "iapid-nn-dekf", "adaptive-nn", "adaptive-bsc")
@@ -93,3 +95,33 @@ def endpoints(p, mechs, trajs) -> dict:
                 out[m]["trajectories"][t] = rstats.pair_rmse(
                     q.tail_position_a, q.failed_a, q.tail_position_b, q.failed_b)
     return out
+
+
+def best_label(record: dict, key: str) -> str:
+    """The best arm ``key`` ("best-adaptive", "best-fixed") by pose source, named once if the
+    same on both."""
+    by = {p: controllers.label(record["best"][p][key]) for p in record["poses"]}
+    if len(set(by.values())) == 1:
+        return next(iter(by.values()))
+    return " / ".join(f"{c} ({p})" for p, c in by.items())
+
+
+def selection_too_close(record: dict, pose: str) -> str | None:
+    """Why the best adaptive or best fixed arm on ``pose`` is not a choice the tuning made (the
+    runner-up arm's training objective is closer to the best's than either arm's own restarts
+    are to each other), or None; only in a record with the runner-up restarts' runs."""
+    if not record.get("restart_pairings"):
+        return None
+    arms = record["tuning"]["arms"][pose]
+    for family in (ADAPTIVE, FIXED):
+        ranked = sorted((c for c in family if c in arms), key=lambda c: arms[c]["objective"])
+        if len(ranked) < 2:
+            continue
+        a, b = ranked[:2]
+        margin = arms[b]["objective"] - arms[a]["objective"]
+        spread = max(arms[a]["agreement"]["spread"], arms[b]["agreement"]["spread"])
+        if margin < spread:
+            la, lb = controllers.label(a), controllers.label(b)
+            return (f"best arm not chosen by the tuning ({la} over {lb} by {margin:.4f}, "
+                    f"restart spread {spread:.4f})")
+    return None

@@ -17,11 +17,12 @@ from dataclasses import asdict
 
 import numpy as np
 
+from analysis import common
 from analysis.regimes import stats as rstats
 from analysis.regimes.pairs import POSES, join, stable
 from wmr import controllers
 
-__all__ = ["RATES", "ARMS", "level", "tables", "analyse", "figure", "rows_of_table"]
+__all__ = ["RATES", "ARMS", "level", "tables", "analyse", "figure", "rows_of_table", "notes"]
 
 #: Multipliers of the controllers' default ``mu``.
 RATES = (1, 10, 100, 1000)
@@ -134,3 +135,28 @@ def figure(rec: dict):
     fig.suptitle("The SGD rate: a sensitivity, not a verdict (defaults otherwise)")
     fig.tight_layout()
     return fig
+
+
+def notes(rec: dict | None) -> str:
+    """The report's paragraph and table of the sensitivity record ``rec`` ('' without one)."""
+    if not rec:
+        return ""
+    div = {}
+    for by in rec["poses"].values():
+        for per in by.values():
+            for x, e in per.items():
+                for c, v in e["divergence"].items():
+                    k, n = div.get((x, c), (0, 0))
+                    div[(x, c)] = (k + v["diverged"], n + v["n"])
+    said = "; ".join(f"x{m:g}: " + ", ".join(f"{controllers.label(c)} {div[(f'x{m:g}', c)][0]} of "
+                                          f"{div[(f'x{m:g}', c)][1]}" for c in rec["arms"])
+                     for m in rec["rates"] if (f"x{m:g}", rec["arms"][0]) in div)  # fmt: skip
+    poses = list(rec["poses"])
+    return "\n".join([
+        "**The SGD rate, a sensitivity and not a verdict.** APID and IAPID-NN-DEKF at the "
+        "defaults but the rate, both on the same pose, at multiples of the default rate. "
+        f"Diverged runs: {said}. The ratio is IAPID / APID on the both-stable pairs, pooled over "
+        "trajectories and seeds with a t interval (descriptive).", "",
+        *common.md_table(["mechanism", "rate", *[f"{p}: ratio [95 %] (pairs); diverged IAPID / "
+                                                 "APID" for p in poses]],
+                         rows_of_table(rec))])  # fmt: skip

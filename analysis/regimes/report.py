@@ -30,6 +30,7 @@ from __future__ import annotations
 import numpy as np
 
 from analysis import common
+from analysis.regimes.pairs import best_label, selection_too_close
 from wmr import controllers
 
 __all__ = ["verdicts", "classify", "notes", "table", "figure"]
@@ -95,7 +96,7 @@ def _withheld(record: dict, name: str, mech: str, pose: str) -> str | None:
     if mech in record["design"].get("mujoco", ()):
         return "MuJoCo: tuned on kinematic plants; 2 ms physics not converged"
     c = record["contrasts"][name]
-    close = _selection_too_close(record, pose) if name == KEY else None
+    close = selection_too_close(record, pose) if name == KEY else None
     if close:
         return close
     if "restarts" in c:
@@ -108,28 +109,6 @@ def _withheld(record: dict, name: str, mech: str, pose: str) -> str | None:
     bad = [a for a in _arms_of(record, name, pose)
            if a in arms and not arms[a]["agreement"]["agree"]]  # fmt: skip
     return f"tuning restarts disagree ({', '.join(bad)})" if bad else None
-
-
-def _selection_too_close(record: dict, pose: str) -> str | None:
-    """Why the best adaptive or best fixed arm on ``pose`` is not a choice the tuning made (the
-    runner-up arm's training objective is closer to the best's than either arm's own restarts
-    are to each other), or None; only in a record with the runner-up restarts' runs."""
-    if not record.get("restart_pairings"):
-        return None
-    from analysis.regimes.pairs import ADAPTIVE, FIXED
-
-    arms = record["tuning"]["arms"][pose]
-    for family in (ADAPTIVE, FIXED):
-        ranked = sorted((c for c in family if c in arms), key=lambda c: arms[c]["objective"])
-        if len(ranked) < 2:
-            continue
-        a, b = ranked[:2]
-        margin = arms[b]["objective"] - arms[a]["objective"]
-        spread = max(arms[a]["agreement"]["spread"], arms[b]["agreement"]["spread"])
-        if margin < spread:
-            return (f"best arm not chosen by the tuning ({_lbl(a)} over {_lbl(b)} by {margin:.4f}"
-                    f", restart spread {spread:.4f})")
-    return None
 
 
 def _word(level: dict, mech: str, pose: str) -> str:
@@ -252,15 +231,6 @@ def _answer(record: dict) -> list[str]:
     return [" ".join(answer), " ".join(scope)]
 
 
-def _best_label(record: dict, key: str) -> str:
-    """The best arm ``key`` ("best-adaptive", "best-fixed") by pose source, named once if the
-    same on both."""
-    by = {p: _lbl(record["best"][p][key]) for p in record["poses"]}
-    if len(set(by.values())) == 1:
-        return next(iter(by.values()))
-    return " / ".join(f"{c} ({p})" for p, c in by.items())
-
-
 def _standing(v: dict, kin: list[str], name: str, setting: str | None) -> str:
     """The verdicts of ``name`` that stand (not withheld), grouped by word: a mechanism named
     once when both pose sources agree, else per pose source, with the range of the cells'
@@ -297,7 +267,7 @@ def _answer_pairings(record: dict, n_dis: int, n_arms: int) -> list[str]:
     restarts leave standing."""
     d, v = record["design"], record["verdict"]["mechanisms"]
     kin = [m for m in v if m not in d.get("mujoco", ())]
-    ada, fix = _best_label(record, "best-adaptive"), _best_label(record, "best-fixed")
+    ada, fix = best_label(record, "best-adaptive"), best_label(record, "best-fixed")
     cells = [(m, n, p) for m in kin for n in v[m] for p in v[m][n]["poses"]]
     kept = sum(v[m][n]["poses"][p]["verdict"] != "withheld" for m, n, p in cells)
     mj = " off the MuJoCo robot, where all are withheld" if d.get("mujoco") else ""
@@ -509,31 +479,9 @@ def _extra(record: dict) -> str:
 
 
 def _rates(record: dict) -> str:
-    """The SGD rate's sensitivity figure's numbers (``analysis.regimes.rates``)."""
     from analysis.regimes import rates
 
-    rec = record.get("rates")
-    if not rec:
-        return ""
-    div = {}
-    for by in rec["poses"].values():
-        for per in by.values():
-            for x, e in per.items():
-                for c, v in e["divergence"].items():
-                    k, n = div.get((x, c), (0, 0))
-                    div[(x, c)] = (k + v["diverged"], n + v["n"])
-    said = "; ".join(f"x{m:g}: " + ", ".join(f"{_lbl(c)} {div[(f'x{m:g}', c)][0]} of "
-                                          f"{div[(f'x{m:g}', c)][1]}" for c in rec["arms"])
-                     for m in rec["rates"] if (f"x{m:g}", rec["arms"][0]) in div)  # fmt: skip
-    poses = list(rec["poses"])
-    return "\n".join([
-        "**The SGD rate, a sensitivity and not a verdict.** APID and IAPID-NN-DEKF at the "
-        "defaults but the rate, both on the same pose, at multiples of the default rate. "
-        f"Diverged runs: {said}. The ratio is IAPID / APID on the both-stable pairs, pooled over "
-        "trajectories and seeds with a t interval (descriptive).", "",
-        *common.md_table(["mechanism", "rate", *[f"{p}: ratio [95 %] (pairs); diverged IAPID / "
-                                                 "APID" for p in poses]],
-                         rates.rows_of_table(rec))])  # fmt: skip
+    return rates.notes(record.get("rates"))
 
 
 def _recovery(record: dict) -> str:
