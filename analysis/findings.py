@@ -199,7 +199,7 @@ def regimes(reg: dict) -> Finding:
             f"{ad} against {fx} pays on " + (", ".join(pays) or "none")
             + (f" (RMSE ratio {span(ba, pays)})" if pays else "") + " and costs on "
             + (", ".join(costs) or "none") + ". "
-            + (_tuned_sentence(reg, mech, ba) if reg.get("restart_pairings") else
+            + (_tuned_sentence(reg) if reg.get("restart_pairings") else
                f"Tuned verdicts are withheld ({n_withheld} of "
                f"{sum(len(e) for e in mech.values())}) because the tuning's restarts disagree "
                f"for {n_dis} of {len(arms)} arms and the MuJoCo mechanisms were tuned on "
@@ -208,14 +208,14 @@ def regimes(reg: dict) -> Finding:
                    reg["figures"][0] if reg.get("figures") else None)
 
 
-def _tuned_sentence(reg: dict, mech: dict, ba: str) -> str:
+def _tuned_sentence(reg: dict) -> str:
     """How many tuned verdicts off the MuJoCo robot hold at every pairing of the two arms'
     tuning restarts (and, for the best arms, their choice)."""
-    kin = [m for m in mech if m not in reg["design"].get("mujoco", ())]
-    cells = [v for m in kin for e in mech[m].values() for v in e["poses"].values()]
-    kept = sum(v["verdict"] != "withheld" for v in cells)
-    return (f"Tuned, only {kept} of {len(cells)} verdicts off the MuJoCo robot survive the "
-            "tuning's restarts and the choice of the best arms.")
+    from analysis.regimes.report import standing_count
+
+    kept, n = standing_count(reg)
+    return (f"Tuned, only {kept} of {n} verdicts off the MuJoCo robot survive the tuning's "
+            "restarts and the choice of the best arms.")
 
 
 def calibration(cal: dict) -> Finding:

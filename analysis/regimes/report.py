@@ -33,7 +33,7 @@ from analysis import common
 from analysis.regimes.pairs import best_label, selection_too_close
 from wmr import controllers
 
-__all__ = ["verdicts", "classify", "notes", "table", "figure"]
+__all__ = ["verdicts", "classify", "notes", "table", "figure", "standing_count"]
 
 KEY = "best-adaptive - best-fixed"
 #: Fewest both-stable pairs behind a verdict (fewer: "undecided"; a cell's interval from the
@@ -261,6 +261,14 @@ def _standing(v: dict, kin: list[str], name: str, setting: str | None) -> str:
         f"; {n_held} (mechanism, pose source) verdicts withheld" if n_held else "")
 
 
+def standing_count(record: dict) -> tuple[int, int]:
+    """How many of the tuned (mechanism, contrast, pose source) verdicts off the MuJoCo robot
+    stand (are not withheld), of how many."""
+    v, mj = record["verdict"]["mechanisms"], record["design"].get("mujoco", ())
+    cells = [x for m in v if m not in mj for e in v[m].values() for x in e["poses"].values()]
+    return sum(x["verdict"] != "withheld" for x in cells), len(cells)
+
+
 def _answer_pairings(record: dict, n_dis: int, n_arms: int) -> list[str]:
     """The answer in five sentences for a record with the runner-up restarts' runs: the tuned
     verdicts that stand (with their ratios), the defaults', and how many tuned verdicts the
@@ -268,8 +276,7 @@ def _answer_pairings(record: dict, n_dis: int, n_arms: int) -> list[str]:
     d, v = record["design"], record["verdict"]["mechanisms"]
     kin = [m for m in v if m not in d.get("mujoco", ())]
     ada, fix = best_label(record, "best-adaptive"), best_label(record, "best-fixed")
-    cells = [(m, n, p) for m in kin for n in v[m] for p in v[m][n]["poses"]]
-    kept = sum(v[m][n]["poses"][p]["verdict"] != "withheld" for m, n, p in cells)
+    kept, n_cells = standing_count(record)
     mj = " off the MuJoCo robot, where all are withheld" if d.get("mujoco") else ""
     return [
         f"**The answer.** Tuned, the best adaptive arm ({ada}) against the best fixed one "
@@ -281,7 +288,7 @@ def _answer_pairings(record: dict, n_dis: int, n_arms: int) -> list[str]:
         f"At the defaults, {ada} against {fix}: {_standing(v, kin, KEY, 'default')}.",
         "A tuned verdict stands only where all four pairings of the two arms' best and "
         "runner-up tuning restarts give it, and the best arms only where the tuning told them "
-        f"from the runner-up arm: {kept} of {len(cells)} do{mj} ({n_dis} of "
+        f"from the runner-up arm: {kept} of {n_cells} do{mj} ({n_dis} of "
         f"{n_arms} arms' restarts disagree at {d['per_setting']} evaluations per free "
         "setting)."]
 
