@@ -526,3 +526,120 @@ def test_a_best_arm_the_tuning_did_not_tell_apart_withholds_its_contrast():
     apart = copy.deepcopy(record)
     apart["tuning"]["arms"]["raw"]["adaptive-nn"]["objective"] = 0.2
     assert pairs.selection_too_close(apart, "raw") is None
+
+
+# ---------------------------------------------------------------------------------------------
+# The rule's combination of the pose sources, and the adaptation switched off
+
+
+def test_pose_sources_are_combined_without_inventing_a_dependence():
+    from analysis.regimes import rule
+
+    def entry(**words):
+        return rule._combine({p: {"verdict": w, "diverges_more": False} for p, w in
+                              words.items()}, {})["verdict"]  # fmt: skip
+
+    assert entry(raw="pays", filtered="pays") == "pays"
+    assert entry(raw="same within 5 %", filtered="undecided") == \
+        "same within 5 % (raw; undecided on filtered)"  # a wider interval is no dependence
+    assert entry(raw="withheld", filtered="costs") == "costs (filtered; withheld on raw)"
+    assert entry(raw="same within 5 %", filtered="pays") == \
+        "same within 5 % (raw; pays on filtered)"  # both can hold of 0.97
+    assert entry(raw="pays", filtered="costs") == "depends on the pose source"
+    assert entry(raw="same within 5 %", filtered="costs (divergence)") == \
+        "depends on the pose source"
+    assert entry(raw="undecided", filtered="withheld") == "undecided (raw; withheld on filtered)"
+    # what each word claims of a true ratio
+    assert rule.compatible("pays", 0.97) and rule.compatible("same within 5 %", 0.97)
+    assert not rule.compatible("pays", 1.0) and not rule.compatible("same within 5 %", 0.9)
+    assert rule.compatible("undecided", 3.0) and not rule.compatible("costs (divergence)", 0.9)
+    with pytest.raises(ValueError):
+        rule.compatible("depends on the pose source", 1.0)
+
+
+def test_the_coverage_counts_acceptance_and_power_on_planted_truth():
+    """At the IAPID - APID noise (small) the rule accepts and decides every planted truth; at a
+    noise where one pose source's interval is often too wide, it still accepts the truth (an
+    undecided word rejects nothing) while its power drops, and no mechanism reads "depends"."""
+    quiet = rcov.coverage(_layout(6, 0.003, 0.01), replicates=6, seed=3, use_t=(True,))
+    for x in quiet["intervals"]["t(G-1)"].values():
+        assert x["accepts"] == 1.0 and x["correct"] == 1.0 and x["depends"] == 0.0
+    loud = rcov.coverage(_layout(6, 0.01, 0.12), replicates=20, seed=3, use_t=(True,))
+    at1 = loud["intervals"]["t(G-1)"]["1"]
+    assert at1["correct"] < 0.9 <= at1["accepts"], at1  # power short, the truth accepted
+    assert at1["depends"] <= 0.05
+
+
+def test_the_frozen_settings_switch_the_adaptation_off():
+    """Each adaptive arm with :data:`design.FROZEN` over its settings is its fixed law: APID
+    frozen is the fixed PID at the same gains (bit for bit), DA-NN frozen is backstepping at its
+    gains (to 1e-9: its compensator stays ~0); IAPID frozen does not move its gains (the
+    same run as APID frozen); unfrozen, each differs."""
+    from wmr.engine import Job, run_job
+
+    doc = design.document("sinusoid", "wheel-radius", 6.0)
+
+    def rmse(c, table):
+        return run_job(Job(tuning.scenario(doc, tuning.arm(c, "raw"), table), c, 3)).tail_position
+
+    gains = [3.0, 2.0, 0.0, 6.0, 1.0, 0.0]
+    pid = rmse("pid", {"gains": gains})
+    for c in ("adaptive-pid", "iapid-nn-dekf"):
+        assert rmse(c, {"gains": gains, **design.FROZEN[c]}) == pid
+        assert rmse(c, {"gains": gains, "mu": [9.0] * 6}) != pid
+    k = [1.5, 20.0, 5.0]
+    bsc = rmse("backstepping", {"gains": k})
+    assert abs(rmse("adaptive-nn", {"gains": k, **design.FROZEN["adaptive-nn"]}) / bsc - 1) < 1e-9
+    assert abs(rmse("adaptive-nn", {"gains": k}) / bsc - 1) > 1e-6
+    assert set(design.FROZEN) == set(pairs.ADAPTIVE) | {"iapid-oracle"}
+
+
+def test_an_inert_best_adaptive_arm_withholds_its_contrast_and_a_frozen_mismatch_fails(quick):
+    record, _ = quick
+    assert set(record["arms_run"]["tuned-frozen"]["raw"]) == \
+        {c for c in record["arms"] if c in design.FROZEN}
+    regimes.check(record)
+    ad = record["adaptation"]["arms"]
+    assert set(ad) == set(record["arms_run"]["tuned-frozen"]["raw"])
+    # plant an inert adaptation for the best adaptive arm on ideal/raw: the KEY verdict withheld
+    rec = json.loads(json.dumps(record))
+    best = rec["best"]["raw"]["best-adaptive"]
+    if best not in rec["adaptation"]["arms"]:
+        rec["adaptation"]["arms"][best] = json.loads(json.dumps(ad[next(iter(ad))]))
+    e = rec["adaptation"]["arms"][best]
+    e["raw"]["ideal"]["divergence"]["p"] = 1.0
+    e["model"]["cells"]["ideal"]["raw"].update(n=40, ratio=1.0, ratio_ci=[0.99, 1.01])
+    assert report.frozen_word(rec, best, "ideal", "raw") == "same within 5 %"
+    v = report.verdicts(rec)["mechanisms"]["ideal"][report.KEY]["poses"]["raw"]
+    assert v["verdict"] == "withheld" and "inert" in v["withheld"], v
+    e["model"]["cells"]["ideal"]["raw"].update(ratio=0.5, ratio_ci=[0.4, 0.6])  # it pays
+    v = report.verdicts(rec)["mechanisms"]["ideal"][report.KEY]["poses"]["raw"]
+    assert "inert" not in (v["withheld"] or "")
+    # a frozen arm that ran with another tuned gain than its adapting self fails the check
+    bad = json.loads(json.dumps(record))
+    arm = next(iter(bad["arms_run"]["tuned-frozen"]["raw"]))
+    bad["arms_run"]["tuned-frozen"]["raw"][arm]["settings"]["gains"][0] += 1.0
+    with pytest.raises(AssertionError):
+        regimes.check(bad)
+
+
+def test_the_rate_ratio_interval_is_clustered_by_seed():
+    """Pairs sharing a seed effect (sd 0.05) and their own noise (0.005), 20 seeds x 5 pairs:
+    the seed-clustered 95 % interval covers the planted log ratio in >= 90 % of 300 replicates;
+    an interval treating the 100 pairs as independent (the earlier one) covers < 70 %."""
+    from scipy.stats import t as student
+
+    from analysis.regimes import rates
+
+    rng = np.random.default_rng(11)
+    seeds = np.repeat(np.arange(20), 5)
+    hit = naive = 0
+    for _ in range(300):
+        d = 0.1 + rng.normal(0, 0.05, 20)[seeds] + rng.normal(0, 0.005, seeds.size)
+        e = rates._ratio(pd.DataFrame({"delta": d, "seed": seeds}))
+        hit += e["ratio_ci"][0] <= math.exp(0.1) <= e["ratio_ci"][1]
+        h = student.ppf(0.975, d.size - 1) * d.std(ddof=1) / math.sqrt(d.size)
+        naive += abs(d.mean() - 0.1) <= h
+    assert hit >= 0.9 * 300 and naive < 0.7 * 300, (hit, naive)
+    one = rates._ratio(pd.DataFrame({"delta": [0.1, 0.2], "seed": [3, 3]}))
+    assert one["ratio_ci"] is None and one["n_stable"] == 2  # one seed: no interval

@@ -30,7 +30,7 @@ import numpy as np
 
 from analysis import common, tuning
 from analysis.regimes import coverage as rcov
-from analysis.regimes import design, rates, report
+from analysis.regimes import design, frozen, rates, report
 from analysis.regimes import stats as rstats
 from analysis.regimes.pairs import (
     ADAPTIVE,
@@ -153,10 +153,16 @@ def _specs(d: dict, tuned: dict, folder: Path, known: dict | None = None
             runs.append(("tuned-other", files, d["seeds"], other))
         if mj:
             runs.append(("tuned-mujoco", mj, d["mujoco_seeds"], tables))
+        if d.get("frozen", True):  # the adaptive arms with their adaptation off
+            off = frozen.tables(tables)
+            runs.append((frozen.LEVEL, files, d["seeds"], off))
+            if mj:
+                runs.append((f"{frozen.LEVEL}-mujoco", mj, d["mujoco_seeds"], off))
         for level, names, seeds, tab in runs:
             p = folder / f"{level}-{pose}.toml"
             p.write_text(_spec_text(f"regimes-{level}-{pose}", names, seeds, pose, tab,
-                                    d["arms"]))  # fmt: skip
+                                    tuple(c for c in d["arms"] if c in tab)
+                                    if level.startswith(frozen.LEVEL) else d["arms"]))
             out.append((level, pose, p))
         for m, t in (known or {}).get(pose, {}).items():
             names = [f for f in files if f.endswith(f"@{m}.toml")]
@@ -446,6 +452,7 @@ def analyse(rows, tuned: dict) -> dict:
             "restart_pairings": [f"{la} / {lb}" for la, lb in PAIRINGS
                                  if (rows.level == "tuned-other").any()],
             "best": best, "divergence": div, "contrasts": contrasts, "paper_arm": paper,
+            "adaptation": frozen.analyse(rows, mechs, trajs),
             "margins": {"relative": rstats.REL_MARGIN, "absolute": rstats.ABS_MARGIN},
             "alpha": rstats.ALPHA}  # fmt: skip
 
@@ -497,6 +504,11 @@ def check(record: dict) -> None:
         for c in by_pose["raw"]:
             allowed = set() if _untuned(level) else free[c]
             design.matched(by_pose["raw"][c], by_pose["filtered"][c], allowed, "pose")
+        if level.startswith(frozen.LEVEL):  # each arm frozen against itself: the adaptation only
+            on = record["arms_run"][level.replace(frozen.LEVEL, "tuned")]
+            for pose, arms in by_pose.items():
+                for c, e in arms.items():
+                    design.matched(on[pose][c], e, set(design.FROZEN[c]), "arm")
     for lv in record["divergence"].values():
         for pose in lv.values():
             for arms in pose.values():

@@ -7,11 +7,16 @@ noise at the record's levels: per mechanism a seed effect (shared by that mechan
 one seed on both pose sources and every trajectory) and a pair's own noise, their standard
 deviations the method-of-moments estimates from the record's variation over the seeds
 (:func:`noise`).  Each replicate is fitted by the study's model
-(``_regimes_stats.fit_model`` and ``estimates``) and judged by its verdict rule
-(``_regimes_report.classify`` per pose source, combined as the report does); the planted truth
-is "same within 5 %" at 1.0 and 0.97, "pays" at 0.90 and "costs" at 1.10.  Reported: the 95 %
-interval's coverage of the planted log ratio (cells and mechanisms) and the share of each
-verdict, per planted ratio and per interval (normal or t at G - 1 df).
+(``analysis.regimes.stats.fit_model`` and ``estimates``) and judged by its verdict rule
+(``analysis.regimes.rule``: ``classify`` per pose source, ``_combine`` per mechanism); the
+planted truth is "same within 5 %" at 1.0 and 0.97, "pays" at 0.90 and "costs" at 1.10.
+Reported, per planted ratio and per interval (normal or t at G - 1 df): the 95 % interval's
+coverage of the planted log ratio (cells and mechanisms); each word's share of the (mechanism,
+pose source) verdicts; the share of mechanisms whose pose sources contradict ("depends on the
+pose source": never true of a planted ratio shared by both); the rule's **acceptance of the
+truth** (DESIGN §7.6: no word of the mechanism false of the planted ratio, ``rule.compatible``;
+"undecided" rejects nothing, and "pays" is true of 0.97) and its **power** (``correct``: every
+pose source's word the planted one).
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ import warnings
 
 import numpy as np
 
-from analysis.regimes import report
+from analysis.regimes import rule
 from analysis.regimes import stats as rstats
 
 __all__ = ["RATIOS", "TRUTH", "noise", "simulate", "coverage"]
@@ -29,7 +34,8 @@ __all__ = ["RATIOS", "TRUTH", "noise", "simulate", "coverage"]
 #: Planted ratios and the verdict each should get (the rule's 5 % margin: 0.97 is inside it).
 RATIOS = (1.0, 0.97, 0.90, 1.10)
 TRUTH = {1.0: "same within 5 %", 0.97: "same within 5 %", 0.90: "pays", 1.10: "costs"}
-WORDS = ("pays", "costs", "same within 5 %", "undecided", "depends on the pose source")
+#: A pose source's verdict words (the synthetic pairs have no divergence).
+WORDS = ("pays", "costs", "same within 5 %", "undecided")
 
 
 def noise(frame) -> dict[str, dict[str, float]]:
@@ -67,13 +73,11 @@ def simulate(frame, sd: dict, ratio: float, rng: np.random.Generator):
     return df
 
 
-def _verdicts(est: dict, poses) -> dict[str, str]:
-    """Each mechanism's verdict as the report words it (the pose sources' common word)."""
-    out = {}
-    for m, e in est["mechanisms"].items():
-        per = {p: report._one(est["cells"][m].get(p), 0) for p in poses if p in est["cells"][m]}
-        out[m] = report._combine(per, report._one(e, 0))["verdict"]
-    return out
+def _verdicts(est: dict, poses) -> dict[str, dict[str, str]]:
+    """Each mechanism's pose-source words (``rule._one`` of its cells, as the report has
+    them)."""
+    return {m: {p: rule._one(est["cells"][m].get(p), 0)["verdict"] for p in poses
+                if p in est["cells"][m]} for m in est["mechanisms"]}  # fmt: skip
 
 
 def coverage(frame, replicates: int, seed: int = 0, use_t: tuple[bool, ...] = (False, True),
@@ -96,6 +100,7 @@ def coverage(frame, replicates: int, seed: int = 0, use_t: tuple[bool, ...] = (F
             cells = mech = 0
             n_cells = n_mech = 0
             counts = dict.fromkeys(WORDS, 0)
+            judged = accepts = correct = depends = 0
             for _ in range(replicates):
                 df = simulate(frame, sd, ratio, rng)
                 with warnings.catch_warnings(record=True):
@@ -110,12 +115,19 @@ def coverage(frame, replicates: int, seed: int = 0, use_t: tuple[bool, ...] = (F
                 for e in est["mechanisms"].values():
                     mech += e["log_ci"][0] <= truth <= e["log_ci"][1]
                     n_mech += 1
-                for w in _verdicts(est, poses).values():
-                    counts[w] += 1
+                for by in _verdicts(est, poses).values():
+                    for w in by.values():
+                        counts[w] += 1
+                    split = rule.contradict(by.values())
+                    judged += 1
+                    depends += split
+                    accepts += not split and all(rule.compatible(w, ratio) for w in by.values())
+                    correct += all(w == TRUTH[ratio] for w in by.values())
             total = sum(counts.values())
             rows[f"{ratio:g}"] = {"coverage_cells": cells / n_cells,
                                   "coverage_mechanisms": mech / n_mech,
                                   "verdicts": {w: c / total for w, c in counts.items()},
-                                  "correct": counts[TRUTH[ratio]] / total}  # fmt: skip
+                                  "depends": depends / judged, "accepts": accepts / judged,
+                                  "correct": correct / judged}  # fmt: skip
         out["intervals"]["t(G-1)" if t else "normal"] = rows
     return out

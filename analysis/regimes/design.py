@@ -23,7 +23,7 @@ from wmr import scenario as scn
 
 __all__ = ["MECHANISMS", "MUJOCO", "TRAJECTORIES", "TRAINING", "document", "evaluation_text",
            "training_documents", "training_on", "context", "arm_entry", "COMPARED", "matched",
-           "MatchError"]  # fmt: skip
+           "MatchError", "FROZEN"]  # fmt: skip
 
 #: The evaluation's plant mechanisms: the ``[plant]`` table of each (TOML text).
 MECHANISMS = {
@@ -139,6 +139,17 @@ def training_on(mechanism: str, duration: float = 20.0) -> dict[str, dict]:
         plant = MECHANISMS[mechanism].replace("at = 20.0", f"at = {0.5 * duration}")  # mid-run
         out[f"{ref}@{mechanism}"] = tomllib.loads(body + "\n" + plant)
     return out
+
+
+#: What switches each adaptive arm's adaptation off, written over its tuned settings (the run
+#: level "tuned-frozen": ``analysis.regimes.frozen``): the SGD off for the PID family (the
+#: identifier of IAPID still learns, its Jacobian unused); DA-NN's weight filter without
+#: covariance (``P0 = 1e-12 I``, ``Q = 0``: its compensator, initialised to zero, stays ~0, so it
+#: is backstepping at DA-NN's gains); adaptive BSC's ``P(0) = 0`` (every estimate frozen at the
+#: nominal robot's).
+FROZEN = {"adaptive-pid": {"adapt": False}, "iapid-nn-dekf": {"adapt": False},
+          "iapid-oracle": {"adapt": False}, "adaptive-nn": {"p0": 1e-12, "q": 0.0},
+          "adaptive-bsc": {"adaptation": [0.0, 0.0, 0.0, 0.0]}}  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1,28 +1,7 @@
 """The regime study's verdicts, prose, table and figure, from its record only (issue 22 item 7).
 
-A mechanism's verdict on a contrast ``a - b`` (tuned settings, the model's estimate averaged
-per pose source, as the ratio of the both-stable RMSEs ``exp(log r_a - log r_b)``):
-
-On each pose source (the model's cell estimate):
-
-- ``"withheld"`` (tuned settings only): the verdict is not the same word at every pairing of
-  the two arms' tuning restarts (each arm at its best and at its runner-up restart: four
-  pairings, the record's ``restart_pairings`` beside the tuned one; the tuned contrast would
-  otherwise measure how well each arm's tuning went, not the arms); in a record without the
-  runner-up runs, whenever either arm's restarts disagree; or the mechanism is a MuJoCo robot
-  (the arms were tuned on kinematic training plants, the PID family's tuned gains do not track
-  there, and the 2 ms physics step is not converged: the robot ladder's audit);
-- ``"costs (divergence)"``: ``a`` diverges significantly more often than ``b`` (exact McNemar at
-  0.05); ``"pays (divergence)"``: ``b`` does;
-- ``"same within 5 %"``: else, the 95 % interval of the ratio lies inside ``[1/1.05, 1.05]``
-  (a difference that exists but is smaller than the margin is "the same" in practice);
-- ``"pays"``: else, the interval lies below 1; ``"costs"``: above 1;
-- ``"undecided"``: otherwise, or fewer than ``MIN_PAIRS`` = 6 both-stable pairs.
-
-The mechanism's verdict is the pose sources' common word, else "depends on the pose source".
-The same rule at the shared default settings (no tuning: nothing withheld for it) is the
-``"default"`` verdict beside each tuned one; for IAPID - APID it is the verdict on the
-identifier itself (the arms then differ only in the Jacobian).
+The verdict rule is :mod:`analysis.regimes.rule`'s; here it is applied to the record (which
+tuned verdicts are withheld, and why) and written out.
 """
 
 from __future__ import annotations
@@ -30,57 +9,16 @@ from __future__ import annotations
 import numpy as np
 
 from analysis import common
+from analysis.regimes import rule
 from analysis.regimes.pairs import best_label, selection_too_close
+from analysis.regimes.rule import MIN_PAIRS, _combine, _div, _one, _word, classify
 from wmr import controllers
 
-__all__ = ["verdicts", "classify", "notes", "table", "figure", "standing_count"]
+__all__ = ["verdicts", "classify", "notes", "table", "figure", "standing_count", "frozen_word",
+           "MIN_PAIRS"]
 
 KEY = "best-adaptive - best-fixed"
-#: Fewest both-stable pairs behind a verdict (fewer: "undecided"; a cell's interval from the
-#: model's pooled clusters is not evidence about two or three pairs).
-MIN_PAIRS = 6
 IA = "iapid-nn-dekf - adaptive-pid"
-
-
-def _div(c: dict, mech: str, pose: str, setting: str | None = "tuned") -> int:
-    """+1 when a diverges significantly more often than b on ``mech`` and ``pose`` (exact
-    McNemar at 0.05), -1 when b does, 0 otherwise (``setting`` None: ``c`` is one level's)."""
-    d = (c if setting is None else c[setting])[pose].get(mech, {}).get("divergence")
-    if not (d and d["p"] < 0.05):
-        return 0
-    return 1 if d["a_only"] > d["b_only"] else -1 if d["b_only"] > d["a_only"] else 0
-
-
-def _div_worse(c: dict, mech: str, pose: str) -> bool:
-    """Whether a diverges significantly more often than b on ``mech`` and ``pose`` (tuned)."""
-    return _div(c, mech, pose) > 0
-
-
-def classify(est: dict | None, div_worse, margin: float = 0.05) -> str:
-    """The verdict word (see the module) from the model's estimate ``est`` (``ratio_ci``) and
-    the paired divergence (``div_worse``: +1 / True a diverges more, -1 b does, 0 / False)."""
-    if div_worse is True or div_worse == 1:
-        return "costs (divergence)"
-    if div_worse == -1:
-        return "pays (divergence)"
-    if est is None or est["n"] < MIN_PAIRS:
-        return "undecided"
-    lo, hi = est["ratio_ci"]
-    if lo > 1 / (1 + margin) and hi < 1 + margin:
-        return "same within 5 %"
-    if hi < 1.0:
-        return "pays"
-    if lo > 1.0:
-        return "costs"
-    return "undecided"
-
-
-def _one(est: dict | None, worse, withheld: str | None = None) -> dict:
-    return {"verdict": "withheld" if withheld else classify(est, worse),
-            "withheld": withheld, "diverges_more": worse == 1 or worse is True,
-            "ratio": None if est is None else est["ratio"],
-            "ratio_ci": None if est is None else est["ratio_ci"],
-            "n_stable": 0 if est is None else est["n"]}  # fmt: skip
 
 
 def _arms_of(record: dict, name: str, pose: str) -> tuple[str, str]:
@@ -99,6 +37,10 @@ def _withheld(record: dict, name: str, mech: str, pose: str) -> str | None:
     close = selection_too_close(record, pose) if name == KEY else None
     if close:
         return close
+    best = record["best"][pose]["best-adaptive"]
+    if name == KEY and frozen_word(record, best, mech, pose) == "same within 5 %":
+        return (f"{controllers.label(best)}'s adaptation inert here (frozen, the same within "
+                "5 %): two tunings of fixed laws")  # fmt: skip
     if "restarts" in c:
         words = [_word(c["tuned"], mech, pose)] + [_word(e, mech, pose)
                                                    for e in c["restarts"].values()]
@@ -111,33 +53,40 @@ def _withheld(record: dict, name: str, mech: str, pose: str) -> str | None:
     return f"tuning restarts disagree ({', '.join(bad)})" if bad else None
 
 
-def _word(level: dict, mech: str, pose: str) -> str:
-    """The verdict word of one pairing's contrast entry (``level``: its poses and model)."""
-    model = level["model"] or {"cells": {}}
-    return classify(model["cells"].get(mech, {}).get(pose), _div(level, mech, pose, None))
+def frozen_word(record: dict, arm: str, mech: str, pose: str) -> str | None:
+    """The verdict word of "``arm`` - ``arm`` frozen" at the tuned settings on ``mech`` /
+    ``pose`` (``analysis.regimes.frozen``), or None where the record has no frozen runs of
+    it."""
+    e = (record.get("adaptation") or {}).get("arms", {}).get(arm)
+    return _word(e, mech, pose) if e and mech in e.get(pose, {}) else None
 
 
-def _combine(poses: dict, mean: dict) -> dict:
-    words = {v["verdict"] for v in poses.values()}
-    held = [p for p, v in poses.items() if v["verdict"] == "withheld"]
-    if len(words) == 1:
-        mean["verdict"] = words.pop()
-    elif len(words) == 2 and held:  # one word stands, on the other pose source it is withheld
-        w = (words - {"withheld"}).pop()
-        mean["verdict"] = f"{w} ({', '.join(p for p in poses if p not in held)}; withheld on " \
-                          f"{', '.join(held)})"
-    else:
-        mean["verdict"] = "depends on the pose source"
-    mean["diverges_more"] = any(v["diverges_more"] for v in poses.values())
-    return {**mean, "poses": poses}
+def inert(record: dict) -> dict[str, tuple[str, list[str], int]]:
+    """Per pose source: the best adaptive arm, the simulated plants where its adaptation is
+    inert (switched off at its tuned settings, the same within 5 %), and how many simulated
+    plants there are; empty without frozen runs."""
+    if not record.get("adaptation"):
+        return {}
+    kin = [m for m in record["mechanisms"] if m not in record["design"].get("mujoco", ())]
+    out = {}
+    for pose in record["poses"]:
+        a = record["best"][pose]["best-adaptive"]
+        out[pose] = (a, [m for m in kin if frozen_word(record, a, m, pose) == "same within 5 %"],
+                     len(kin))  # fmt: skip
+    return out
+
+
+def _inert_said(record: dict) -> str:
+    """The best adaptive arms' inert plants counted, per pose source ("" without)."""
+    by = inert(record)
+    return "; ".join(f"{_lbl(a)} ({p}) on {len(ms)} of {n}" for p, (a, ms, n) in by.items())
 
 
 def verdicts(record: dict) -> dict:
     """Per mechanism and contrast: the verdict on each pose source (the model's cell estimate
-    and that pose's McNemar), and the mechanism's: the common word when both pose sources agree,
-    else "depends on the pose source"; beside it the ratio averaged over the pose sources; and
-    the same at the shared defaults (``"default"``)."""
-    out: dict = {"rule": __doc__.split("\n\n", 1)[1].strip(), "mechanisms": {}}
+    and that pose's McNemar), and the mechanism's (``rule._combine``); beside it the ratio
+    averaged over the pose sources; and the same at the shared defaults (``"default"``)."""
+    out: dict = {"rule": rule.__doc__.split("\n\n", 1)[1].strip(), "mechanisms": {}}
     for m in record["mechanisms"]:
         out["mechanisms"][m] = {}
         for name, c in record["contrasts"].items():
@@ -168,8 +117,11 @@ def _lbl(c: str) -> str:
 def notes(record: dict) -> str:
     """The section's text, all from the record: the answer first, in short sentences (DESIGN
     §7.8), then the details, their numbers in tables (Markdown; ``analysis.prose``'s rule)."""
+    from analysis.regimes import frozen  # (it words its cells by this module's rule)
+
     blocks = [*_answer(record), _reading(), _defaults(record), _coverage(record),
-              _tracking(record), *_per_pose(record), _interactions(record), _tuning(record),
+              _tracking(record), *_per_pose(record), frozen.notes(record), _interactions(record),
+              _tuning(record),
               _extra(record), _rates(record), _recovery(record), _cost(record)]  # fmt: skip
     return "\n\n".join(b for b in blocks if b)
 
@@ -278,9 +230,12 @@ def _answer_pairings(record: dict, n_dis: int, n_arms: int) -> list[str]:
     ada, fix = best_label(record, "best-adaptive"), best_label(record, "best-fixed")
     kept, n_cells = standing_count(record)
     mj = " off the MuJoCo robot, where all are withheld" if d.get("mujoco") else ""
+    off = _inert_said(record)
     return [
         f"**The answer.** Tuned, the best adaptive arm ({ada}) against the best fixed one "
-        f"({fix}): {_standing(v, kin, KEY, None)}.",
+        f"({fix}): {_standing(v, kin, KEY, None)}"
+        + (f"; switched off at its tuned settings, its adaptation changes the RMSE by less than "
+           f"5 %: {off} simulated plants." if off else "."),
         f"Tuned, IAPID-NN-DEKF against APID on the same pose: {_standing(v, kin, IA, None)}.",
         "At the shared defaults, where the two differ only in the Jacobian, IAPID-NN-DEKF "
         f"against APID: {_standing(v, kin, IA, 'default')}; APID against the fixed PID there: "
@@ -351,30 +306,35 @@ def _coverage(record: dict) -> str:
                 rows.append([name, interval, ratio, f"{100 * x['coverage_cells']:.1f} %",
                              f"{100 * x['coverage_mechanisms']:.1f} %",
                              *[f"{100 * v.get(w, 0.0):.0f} %" for w in _COV_WORDS],
-                             f"{100 * x['correct']:.0f} %"])  # fmt: skip
-    ba = cov["contrasts"].get(KEY, {}).get("intervals", {}).get("t(G-1)", {})
-    power = (f" With {KEY}'s noise the planted verdict comes out in "
-             + ", ".join(f"{100 * x['correct']:.0f} % at {r}" for r, x in ba.items())
-             + " of mechanisms." if ba else "")  # fmt: skip
-    short = [n for n, c in cov["contrasts"].items()
-             if c["intervals"].get("t(G-1)", {}).get("1", {}).get("correct", 1.0) < 0.9]
-    power += (f" At a planted ratio of 1 the rule gives the right word less than 90 % of the "
-              f"time for {', '.join(short)}: below DESIGN §7.6's bar." if short else "")
+                             *[f"{100 * x[k]:.0f} %" if k in x else "—"
+                               for k in ("depends", "accepts", "correct")]])  # fmt: skip
+    t = {n: c["intervals"].get("t(G-1)", {}) for n, c in cov["contrasts"].items()}
+    acc = [100 * x["accepts"] for by in t.values() for x in by.values() if "accepts" in x]
+    short = [n for n, by in t.items() if any(x.get("accepts", 1.0) < 0.9 for x in by.values())]
+    ba = t.get(KEY, {})
+    said = (f" The rule accepts the planted truth (no word false of it) in {min(acc):.0f}-"
+            f"{max(acc):.0f} % of mechanisms"
+            + (f"; below DESIGN §7.6's 90 % for {', '.join(short)}." if short else
+               ", at or above DESIGN §7.6's 90 %.") if acc else "")  # fmt: skip
+    power = (f" Its power, both pose sources given the planted word, with {KEY}'s noise: "
+             + ", ".join(f"{100 * x['correct']:.0f} % at {r}" for r, x in ba.items()) + "."
+             if ba else "")  # fmt: skip
     return "\n".join([
         f"**The rule on planted truth.** Synthetic pairs with the defaults' layout "
         f"({c0['clusters']} seeds as clusters, {c0['pairs']} both-stable pairs) and the "
         f"record's noise per mechanism, {c0['replicates']} replicates per planted ratio. "
         f"The normal interval covers the planted ratio {_span(record, IA, 'normal')} of the "
         f"time; Student t at G - 1 df covers {_span(record, IA, 't(G-1)')}, and the rule uses "
-        f"it.{power} The noise is Gaussian: a seed effect per mechanism and a pair's own noise, "
-        "at the record's residual levels.", "",
+        f"it.{said}{power} A word's share counts (mechanism, pose source) verdicts; 'pays' is "
+        "true of 0.97. The noise is Gaussian: a seed effect per mechanism and a pair's own "
+        "noise, at the record's residual levels.", "",
         *common.md_table(["contrast", "interval", "planted", "covered (cells)",
                           "covered (mechanisms)", "pays", "costs", "same", "undecided",
-                          "depends on the pose", "right verdict"], rows)])  # fmt: skip
+                          "poses contradict", "accepts truth", "decides right"], rows)])
 
 
 #: The verdict words of the planted-truth table's columns.
-_COV_WORDS = ("pays", "costs", "same within 5 %", "undecided", "depends on the pose source")
+_COV_WORDS = ("pays", "costs", "same within 5 %", "undecided")
 
 
 def _tracking(record: dict) -> str:

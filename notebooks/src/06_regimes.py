@@ -118,6 +118,21 @@ if "restart_pairings" in record:
             v = record["verdict"]["mechanisms"][m]["iapid-nn-dekf - adaptive-pid"]["poses"][pose]
             print(f"{m:<24} {pose:<8} pairings: {', '.join(said):<70} -> {v['verdict']}")
 # %% [md]
+# ## The adaptation switched off
+#
+# Is the best adaptive arm adapting at all once tuned? Each adaptive arm also runs at its tuned
+# settings with its adaptation frozen (`design.FROZEN`), the same seeds: the ratio adapting /
+# frozen per mechanism and pose source (below 1: the adaptation pays). Where the best adaptive
+# arm's reads "same", its verdict against the best fixed arm is withheld.
+# %%
+if record.get("adaptation"):
+    for c, e in record["adaptation"]["arms"].items():
+        for pose in record["poses"]:
+            cells = (e["model"] or {"cells": {}})["cells"]
+            said = [f"{m} {cells[m][pose]['ratio']:.2f} ({report.frozen_word(record, c, m, pose)})"
+                    for m in record["mechanisms"] if pose in cells.get(m, {})]
+            print(f"{c:<14} {pose:<8} " + "; ".join(said))
+# %% [md]
 # ## The SGD rate as a sensitivity
 #
 # The retired rate grid let x1000 pick winners. Here the rate is one of each arm's tuned

@@ -1,0 +1,87 @@
+"""The adaptation switched off: each adaptive arm at its tuned settings with its adaptation
+frozen (:data:`analysis.regimes.design.FROZEN`), against itself adapting, seed by seed.
+
+The hostile audit of the full record found DA-NN's tuned adaptation inert on the filtered pose
+(its filter's ``q`` at the floor, ``r`` near the ceiling: frozen, it tracked the same, 3.238 vs
+3.238 mm), so "best adaptive against best fixed" there compared two tunings of fixed laws.  The
+run level ``tuned-frozen`` answers it for every adaptive arm, mechanism and pose source: the
+contrast "arm - arm frozen" (the same arm, the same tuned settings and seeds; the adaptation
+alone differs) goes through the study's contrast model and verdict rule
+(``analysis.regimes.report``); where the best adaptive arm's is "same within 5 %" its tuned
+verdict against the best fixed arm is withheld (``report._withheld``).
+
+Only each arm's best tuning restart is frozen: the contrast is a property of that tuned setting.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from analysis import common
+from analysis.regimes import design, report
+from analysis.regimes import stats as rstats
+from analysis.regimes.pairs import POSES, endpoints, pairs_of, stable
+from wmr import controllers
+
+__all__ = ["LEVEL", "tables", "analyse", "notes"]
+
+#: The run level of the frozen arms.
+LEVEL = "tuned-frozen"
+
+
+def tables(tuned: Mapping[str, Mapping]) -> dict[str, dict]:
+    """The adaptive arms' settings tables with the adaptation frozen: each arm's tuned table
+    (``tuned``: arm -> table) with :data:`~analysis.regimes.design.FROZEN` written over it."""
+    return {c: {**t, **design.FROZEN[c]} for c, t in tuned.items() if c in design.FROZEN}
+
+
+def analyse(rows, mechs: list[str], trajs: list[str]) -> dict | None:
+    """Per adaptive arm run frozen: "arm - arm frozen" at the tuned settings (level "tuned"
+    against :data:`LEVEL`), its paired endpoints per pose source and the contrast model; None
+    without frozen runs."""
+    frozen = rows[rows.level == LEVEL]
+    if frozen.empty:
+        return None
+    out: dict = {"level": LEVEL, "frozen": design.FROZEN, "arms": {}}
+    for c in dict.fromkeys(frozen.controller):
+        p = pairs_of(rows, c, c, {pose: {} for pose in POSES}, ("tuned", LEVEL))
+        e: dict = {pose: endpoints(p[p.pose == pose], mechs, trajs) for pose in POSES}
+        ok = stable(p)
+        e["model"] = (rstats.contrast_model(ok, apart=tuple(design.MUJOCO)) if len(ok) > 2
+                      else None)  # fmt: skip
+        out["arms"][c] = e
+    return out
+
+
+def notes(record: dict) -> str:
+    """The paragraph and table: each adaptive arm's adaptation against none, per mechanism and
+    pose source (the verdict word and the ratio adapting / frozen)."""
+    ad = record.get("adaptation")
+    if not ad:
+        return ""
+    rows = []
+    for c, e in ad["arms"].items():
+        cells = (e["model"] or {"cells": {}})["cells"]
+        for pose in record["poses"]:
+            line = [controllers.label(c), pose]
+            for m in record["mechanisms"]:
+                x = cells.get(m, {}).get(pose)
+                w = report.frozen_word(record, c, m, pose)
+                line.append("—" if x is None else f"{x['ratio']:.3f} ({_short(w)})")
+            rows.append(line)
+    said = "; ".join(f"{controllers.label(a)} ({p}) on {len(ms)} of {n}"
+                     for p, (a, ms, n) in report.inert(record).items())  # fmt: skip
+    return "\n".join([
+        "**The adaptation switched off.** Each adaptive arm at its tuned settings with its "
+        "adaptation frozen, against itself adapting (the same settings and seeds; "
+        "`analysis.regimes.frozen`). A ratio below 1 means the adaptation pays given the "
+        "initial gains the tuning chose for the adapting arm; against a tuned fixed law it is "
+        "APID - PID and best adaptive - best fixed. The best adaptive arm's adaptation is inert "
+        f"(the same within 5 % frozen) {said} simulated plants; there its tuned verdict "
+        "against the best fixed arm is withheld. Only each arm's best restart is frozen.", "",
+        *common.md_table(["arm", "pose", *record["mechanisms"]], rows)])
+
+
+def _short(word: str) -> str:
+    return {"same within 5 %": "same", "costs (divergence)": "costs, div.",
+            "pays (divergence)": "pays, div."}.get(word, word)
