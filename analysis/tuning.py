@@ -28,7 +28,7 @@ evaluation.
   written into its ``[controllers.<name>]`` table (:func:`scenario`), so a run's settings are
   the scenario it was made from.
 
-Arms register in :data:`ARMS`; ``nmpc`` joins with one line once it is registered.
+Arms register in :data:`ARMS` (a controller with its free settings in :data:`FREE`).
 """
 
 from __future__ import annotations
@@ -174,8 +174,13 @@ _DANN = (Free("p0", "p0", low=1.0, high=1e4, log=True),
 _ABSC = tuple(Free(f"P0[{i}]", "adaptation", i, low=d / 100, high=d * 1000, log=True)
               for i, d in enumerate((2.0, 0.02, 2.0, 2.0)))  # fmt: skip
 
-#: Free settings per controller (issue 22 item 2).  ``nmpc`` joins with its weights in one line
-#: once it is registered: ``"nmpc": (Free("q_pos", "weights", 0, ...), ...),``.
+# NMPC's four stage weights (q_p, q_th, r_v, r_w), each from a hundredth to a hundred times its
+# default; the horizon (2 s), the terminal weight and the solver (RTI) stay the controller's.
+_NMPC = tuple(Free(n, "weights", i, low=d / 100, high=d * 100, log=True)
+              for i, (n, d) in enumerate((("q_p", 10.0), ("q_th", 1.0), ("r_v", 0.1),
+                                          ("r_w", 0.1))))  # fmt: skip
+
+#: Free settings per controller (issue 22 item 2).
 FREE: dict[str, tuple[Free, ...]] = {
     "pid": _PID,
     "adaptive-pid": _PID + _SGD,
@@ -184,6 +189,7 @@ FREE: dict[str, tuple[Free, ...]] = {
     "backstepping": _BSC,
     "adaptive-nn": _BSC + _DANN,
     "adaptive-bsc": _BSC + _ABSC,
+    "nmpc": _NMPC,
 }
 #: The arms by controller (the pose source is the caller's: :func:`arm`).
 ARMS = tuple(FREE)

@@ -573,14 +573,15 @@ def test_the_coverage_counts_acceptance_and_power_on_planted_truth():
 def test_the_frozen_settings_switch_the_adaptation_off():
     """Each adaptive arm with :data:`design.FROZEN` over its settings is its fixed law: APID
     frozen is the fixed PID at the same gains (bit for bit), DA-NN frozen is backstepping at its
-    gains (to 1e-9: its compensator stays ~0); IAPID frozen does not move its gains (the
-    same run as APID frozen); unfrozen, each differs."""
+    gains (to 1e-9: its compensator stays ~0, also at the largest Kalman gain of its box and on
+    the filtered pose), Adaptive BSC frozen is backstepping (to 1e-9); IAPID frozen does not
+    move its gains (the same run as APID frozen); unfrozen, each differs."""
     from wmr.engine import Job, run_job
 
     doc = design.document("sinusoid", "wheel-radius", 6.0)
 
-    def rmse(c, table):
-        return run_job(Job(tuning.scenario(doc, tuning.arm(c, "raw"), table), c, 3)).tail_position
+    def rmse(c, table, pose="raw"):
+        return run_job(Job(tuning.scenario(doc, tuning.arm(c, pose), table), c, 3)).tail_position
 
     gains = [3.0, 2.0, 0.0, 6.0, 1.0, 0.0]
     pid = rmse("pid", {"gains": gains})
@@ -591,6 +592,14 @@ def test_the_frozen_settings_switch_the_adaptation_off():
     bsc = rmse("backstepping", {"gains": k})
     assert abs(rmse("adaptive-nn", {"gains": k, **design.FROZEN["adaptive-nn"]}) / bsc - 1) < 1e-9
     assert abs(rmse("adaptive-nn", {"gains": k}) / bsc - 1) > 1e-6
+    # at the bottom of DA-NN's r box (the largest Kalman gain) and on the filtered pose too
+    bsc_f = rmse("backstepping", {"gains": k}, "filtered")
+    frozen = {"gains": k, "r": 10.0, **design.FROZEN["adaptive-nn"]}
+    assert abs(rmse("adaptive-nn", frozen, "filtered") / bsc_f - 1) < 1e-9
+    # Adaptive BSC frozen: its estimates stay at the nominal plant, so it is backstepping
+    absc = rmse("adaptive-bsc", {"gains": k, **design.FROZEN["adaptive-bsc"]})
+    assert abs(absc / bsc - 1) < 1e-9
+    assert abs(rmse("adaptive-bsc", {"gains": k}) / bsc - 1) > 1e-6
     assert set(design.FROZEN) == set(pairs.ADAPTIVE) | {"iapid-oracle"}
 
 

@@ -204,7 +204,7 @@ def arm_entry(runs: Mapping[str, scn.Scenario], controller: str) -> dict:
 #: or off; "arm": a different controller; "oracle": the identifier's training poses).
 COMPARED = (("iapid-nn-dekf", "adaptive-pid", "jacobian"), ("adaptive-pid", "pid", "adapt"),
             ("iapid-oracle", "iapid-nn-dekf", "oracle"), ("adaptive-nn", "backstepping", "arm"),
-            ("adaptive-bsc", "backstepping", "arm"))  # fmt: skip
+            ("adaptive-bsc", "backstepping", "arm"), ("nmpc", "backstepping", "arm"))  # fmt: skip
 
 
 def matched(a: dict, b: dict, free: set[str] = frozenset(), factor: str = "arm") -> None:

@@ -13,7 +13,7 @@ __all__ = ["FIXED", "ADAPTIVE", "POSES", "PAIRINGS", "best_arm", "pairs_of", "pa
            "join", "stable", "model_frame", "endpoints", "best_label",
            "selection_too_close"]
 
-FIXED = ("pid", "backstepping")
+FIXED = ("pid", "backstepping", "nmpc")
 ADAPTIVE = ("adaptive-pid", "iapid-nn-dekf", "adaptive-nn", "adaptive-bsc")
 POSES = ("raw", "filtered")
 

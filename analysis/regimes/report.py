@@ -82,6 +82,24 @@ def _inert_said(record: dict) -> str:
     return "; ".join(f"{_lbl(a)} ({p}) on {len(ms)} of {n}" for p, (a, ms, n) in by.items())
 
 
+def _pays_said(record: dict) -> str:
+    """Per adaptive arm with frozen runs: on how many simulated plants its adaptation pays
+    against itself switched off (``frozen_word`` "pays", with or without divergence), per pose
+    source ("" without frozen runs)."""
+    arms = (record.get("adaptation") or {}).get("arms", {})
+    kin = [m for m in record["mechanisms"] if m not in record["design"].get("mujoco", ())]
+    parts = []
+    for a in arms:
+        n = {p: sum((frozen_word(record, a, m, p) or "").startswith("pays") for m in kin)
+             for p in record["poses"]}  # fmt: skip
+        parts.append(f"{_lbl(a)} " + ", ".join(f"{n[p]} {p}" for p in record["poses"]))
+    if not parts:
+        return ""
+    return ("Against itself switched off at its tuned settings (the matched contrast of "
+            f"adaptation alone), adaptation pays on this many of the {len(kin)} simulated plants "
+            "per pose source: " + "; ".join(parts) + ".")
+
+
 def verdicts(record: dict) -> dict:
     """Per mechanism and contrast: the verdict on each pose source (the model's cell estimate
     and that pose's McNemar), and the mechanism's (``rule._combine``); beside it the ratio
@@ -170,7 +188,7 @@ def _answer(record: dict) -> list[str]:
             f"of {len(arms)} tuned arms, at {d['per_setting']} evaluations per free setting) "
             "and on the MuJoCo robot.",
             "The tuned ratios below are descriptive, not verdicts."]
-    scope = [
+    scope = [x for x in (_pays_said(record),) if x] + [
         "Divergence at the tuned settings on the kinematic plants (10 m bound): "
         + (", ".join(f"{_lbl(c)} {tot[c][0]} of {tot[c][1]}" for c in order if tot[c][0])
            or "none") + ".",
@@ -236,7 +254,8 @@ def _answer_pairings(record: dict, n_dis: int, n_arms: int) -> list[str]:
         f"({fix}): {_standing(v, kin, KEY, None)}"
         + (f"; switched off at its tuned settings, its adaptation changes the RMSE by less than "
            f"5 %: {off} simulated plants." if off else "."),
-        f"Tuned, IAPID-NN-DEKF against APID on the same pose: {_standing(v, kin, IA, None)}.",
+        f"Tuned, IAPID-NN-DEKF against APID on the same pose: {_standing(v, kin, IA, None)}; "
+        f"APID against the fixed PID: {_standing(v, kin, 'adaptive-pid - pid', None)}.",
         "At the shared defaults, where the two differ only in the Jacobian, IAPID-NN-DEKF "
         f"against APID: {_standing(v, kin, IA, 'default')}; APID against the fixed PID there: "
         f"{_standing(v, kin, 'adaptive-pid - pid', 'default')}.",
@@ -355,14 +374,22 @@ def _tracking(record: dict) -> str:
                      f"{x['both_stable']} -> {x['both_tracking']}" for x in ch)
     return (f"**Tracking failure.** A run fails to track when it diverges or its RMSE after the "
             f"transient is above {tr['threshold_m']:g} m: {tr['reason']}. "
-            "At the tuned settings, failed to track / diverged: "
-            + ", ".join(f"{_lbl(c)} {t['track']} / {t['div']} of {t['n']}"
-                        for c, t in tot.items()) + ". "
+            + _failed(tot)
             + ("Comparing on both-tracking instead of both-stable pairs changes no verdict."
                if not ch else f"Comparing on both-tracking pairs changes {len(ch)} verdicts: "
                + said + ".")
             + " The counts per mechanism and pose, with Clopper-Pearson intervals, are in the "
               "tracking table below.")
+
+
+def _failed(tot: dict) -> str:
+    """Failed to track / diverged per arm; the run count said once where it is common."""
+    ns = {t["n"] for t in tot.values()}
+    each = (lambda t: "") if len(ns) == 1 else (lambda t: f" of {t['n']}")
+    head = f"of {ns.pop()} runs per arm, " if len(ns) == 1 else ""
+    return (f"At the tuned settings, {head}failed to track / diverged: "
+            + ", ".join(f"{_lbl(c)} {t['track']} / {t['div']}{each(t)}" for c, t in tot.items())
+            + ". ")
 
 
 def _per_pose(record: dict) -> list[str]:
