@@ -185,7 +185,6 @@ def regimes(reg: dict) -> Finding:
             f"Jacobian) within 5 % on {len(same)} of {n_default} plants"
             + (f", and APID the fixed PID on {len(same_pid)}. " if len(same) == n_default
                else ". ")
-            + _best_at_defaults(reg) + " "
             + (_tuned_sentence(reg) if reg.get("restart_pairings") else
                f"Tuned verdicts are withheld ({n_withheld} of "
                f"{sum(len(e) for e in mech.values())}) because the tuning's restarts disagree "
@@ -195,37 +194,21 @@ def regimes(reg: dict) -> Finding:
                    reg["figures"][0] if reg.get("figures") else None)
 
 
-def _best_at_defaults(reg: dict) -> str:
-    """The best adaptive arm against the best fixed one at the defaults, per pose source (the
-    best arms are chosen per pose source, so a ratio is never averaged over two arm pairs):
-    how many simulated plants it pays and costs on, with the ratios' range."""
-    ba, out = "best-adaptive - best-fixed", []
-    for pose in reg["poses"]:
-        by: dict = {"pays": [], "costs": []}
-        for v in reg["verdict"]["mechanisms"].values():
-            x = v[ba].get("default", {}).get("poses", {}).get(pose)
-            if x and x["verdict"].split(" (")[0] in by:
-                by[x["verdict"].split(" (")[0]].append(x["ratio"])
-        r = [x for xs in by.values() for x in xs if x is not None]
-        a = controllers.label(reg["best"][pose]["best-adaptive"])
-        out.append(f"{a} ({pose}) pays on {len(by['pays'])} and costs on "
-                   f"{len(by['costs'])}" + (f" ({min(r):.2f}–{max(r):.2f})" if r else ""))
-    fixed = {controllers.label(reg["best"][p]["best-fixed"]) for p in reg["poses"]}
-    return f"Against {' / '.join(sorted(fixed))} there, " + "; ".join(out) + "."
-
-
 def _tuned_sentence(reg: dict) -> str:
     """How many tuned verdicts off the MuJoCo robot hold at every pairing of the two arms'
     tuning restarts (and, for the best arms, their choice)."""
-    from analysis.regimes.report import inert, standing_count
+    from analysis.regimes.report import bsc_standing, inert, standing_count
 
     kept, n = standing_count(reg)
+    bsc = bsc_standing(reg, ("pays", "pays (divergence)"))
     off = " and ".join(f"{len(ms)} of {k} ({controllers.label(a)}, {p})"
                        for p, (a, ms, k) in inert(reg).items())  # fmt: skip
     return (f"Tuned, {kept} of {n} simulated-plant verdicts survive the restart and best-arm "
             "checks"
-            + (f"; frozen, the best adaptive arm's tuned adaptation changes nothing within 5 % on "
-               f"{off} plants." if off else "."))
+            + (f"; Adaptive BSC against BSC (its law without adaptation, each tuned) {bsc}."
+               if bsc else ".")
+            + (f" The best adaptive arms' tuned adaptation is inert (frozen, within 5 %) on "
+               f"{off} plants." if off else ""))
 
 
 def calibration(cal: dict) -> Finding:

@@ -652,3 +652,18 @@ def test_the_rate_ratio_interval_is_clustered_by_seed():
     assert hit >= 0.9 * 300 and naive < 0.7 * 300, (hit, naive)
     one = rates._ratio(pd.DataFrame({"delta": [0.1, 0.2], "seed": [3, 3]}))
     assert one["ratio_ci"] is None and one["n_stable"] == 2  # one seed: no interval
+
+
+def test_the_smallest_detected_effect_is_read_from_the_planted_table_by_its_size():
+    from analysis.regimes.report import detectable
+
+    def entry(pays=0.0, costs=0.0):
+        return {"verdicts": {"pays": pays, "costs": costs}}
+
+    by = {"1": entry(0.02, 0.02), "0.97": entry(pays=0.5), "1.1": entry(costs=0.8),
+          "0.9": entry(pays=0.95)}  # fmt: skip
+    # |log 0.97| < |log 1.1| < |log 0.9|: 0.9 is the first named in 90 %, 1.1 the one before it
+    assert detectable(by) == "0.9 (95 %); the smaller 1.1 80 %"
+    assert detectable({**by, "0.97": entry(pays=0.91)}) == "0.97 (91 %)"
+    assert detectable({**by, "0.9": entry(pays=0.5)}).startswith("none of the planted ratios")
+    assert detectable({"1": entry()}) == ""

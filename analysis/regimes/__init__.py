@@ -58,7 +58,8 @@ ARMS = tuning.ARMS
 #: The contrasts of the model (a, b): "best-adaptive" / "best-fixed" are chosen per pose source
 #: by the tuning objective on the training set (not by the evaluation).
 CONTRASTS = (("iapid-nn-dekf", "adaptive-pid"), ("adaptive-pid", "pid"),
-             ("best-adaptive", "best-fixed"), ("iapid-oracle", "iapid-nn-dekf"))  # fmt: skip
+             ("best-adaptive", "best-fixed"), ("iapid-oracle", "iapid-nn-dekf"),
+             ("adaptive-bsc", "backstepping"))  # fmt: skip
 #: The contrasts whose rule is measured on planted truth at the defaults' layout (6 seeds).
 COVERED = (("iapid-nn-dekf", "adaptive-pid"), ("best-adaptive", "best-fixed"))
 #: Study levels: the quick one (make test), the committed record's, the full design.
@@ -424,6 +425,8 @@ def analyse(rows, tuned: dict) -> dict:
             "effort_stable_mean": float(eff.mean()) if len(eff) else None}  # fmt: skip
     contrasts = {}
     for a, b in CONTRASTS:
+        if not {best[POSES[0]].get(a, a), best[POSES[0]].get(b, b)} <= set(rows.controller):
+            continue  # (the quick level has fewer arms)
         p = pairs_of(rows, a, b, best)
         name = f"{a} - {b}"
         contrasts[name] = {}

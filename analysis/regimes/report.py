@@ -6,6 +6,8 @@ tuned verdicts are withheld, and why) and written out.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from analysis import common
@@ -18,6 +20,7 @@ __all__ = ["verdicts", "classify", "notes", "table", "figure", "standing_count",
            "MIN_PAIRS"]
 
 KEY = "best-adaptive - best-fixed"
+BSC = "adaptive-bsc - backstepping"
 IA = "iapid-nn-dekf - adaptive-pid"
 
 
@@ -188,7 +191,7 @@ def _answer(record: dict) -> list[str]:
             f"of {len(arms)} tuned arms, at {d['per_setting']} evaluations per free setting) "
             "and on the MuJoCo robot.",
             "The tuned ratios below are descriptive, not verdicts."]
-    scope = [x for x in (_pays_said(record),) if x] + [
+    scope = [x for x in (_pays_said(record), _bsc_said(record)) if x] + [
         "Divergence at the tuned settings on the kinematic plants (10 m bound): "
         + (", ".join(f"{_lbl(c)} {tot[c][0]} of {tot[c][1]}" for c in order if tot[c][0])
            or "none") + ".",
@@ -201,10 +204,12 @@ def _answer(record: dict) -> list[str]:
     return [" ".join(answer), " ".join(scope)]
 
 
-def _standing(v: dict, kin: list[str], name: str, setting: str | None) -> str:
+def _standing(v: dict, kin: list[str], name: str, setting: str | None,
+              only: tuple[str, ...] | None = None) -> str:
     """The verdicts of ``name`` that stand (not withheld), grouped by word: a mechanism named
     once when both pose sources agree, else per pose source, with the range of the cells'
-    ratios; the withheld ones counted."""
+    ratios; the withheld ones counted.  With ``only``: just the groups of those words, without
+    the withheld count ("" if none)."""
     groups: dict = {}
     for m in kin:
         e = v[m][name] if setting is None else v[m][name].get("default")
@@ -219,12 +224,14 @@ def _standing(v: dict, kin: list[str], name: str, setting: str | None) -> str:
                 groups.setdefault(x["verdict"], []).append((f"{m} ({p})", [x["ratio"]]))
     parts = []
     for w, items in groups.items():
-        if w == "withheld":
+        if w == "withheld" or (only is not None and w not in only):
             continue
         rs = [r for _, rr in items for r in rr if r is not None]
-        rng = (f" (ratio {min(rs):.2f}" + (f"–{max(rs):.2f})" if max(rs) != min(rs) else ")")
+        rng = (f" (ratio {min(rs):.3f}" + (f"–{max(rs):.3f})" if max(rs) != min(rs) else ")")
                if rs and "divergence" not in w else "")  # fmt: skip
         parts.append(f"{w} on {', '.join(lbl for lbl, _ in items)}{rng}")
+    if only is not None:
+        return "; ".join(parts)
     held = groups.get("withheld", [])
     n_held = sum(len(rr) for _, rr in held)
     return ("; ".join(parts) or "no verdict stands") + (
@@ -237,6 +244,23 @@ def standing_count(record: dict) -> tuple[int, int]:
     v, mj = record["verdict"]["mechanisms"], record["design"].get("mujoco", ())
     cells = [x for m in v if m not in mj for e in v[m].values() for x in e["poses"].values()]
     return sum(x["verdict"] != "withheld" for x in cells), len(cells)
+
+
+def bsc_standing(record: dict, only: tuple[str, ...] | None = None) -> str:
+    """Tuned Adaptive BSC against BSC, the fixed law it adapts (the matched contrast of an
+    adaptive arm whose fixed law is an arm): its standing verdicts (:func:`_standing`), "" for
+    a record without that contrast or the restarts' runs."""
+    v = record["verdict"]["mechanisms"]
+    if not record.get("restart_pairings") or not all(BSC in e for e in v.values()):
+        return ""
+    kin = [m for m in v if m not in record["design"].get("mujoco", ())]
+    return _standing(v, kin, BSC, None, only)
+
+
+def _bsc_said(record: dict) -> str:
+    said = bsc_standing(record)
+    return ("Tuned, Adaptive BSC against BSC (the same law with its adaptation added, each "
+            f"tuned): {said}." if said else "")
 
 
 def _answer_pairings(record: dict, n_dis: int, n_arms: int) -> list[str]:
@@ -307,8 +331,25 @@ def _span(record: dict, name: str, interval: str, key: str = "coverage_cells") -
     c = record.get("coverage", {}).get("contrasts", {}).get(name, {}).get("intervals", {})
     if interval not in c:
         return ""
-    v = [100 * x[key] for x in c[interval].values()]
-    return f"{min(v):.0f}-{max(v):.0f} %"
+    v = [round(100 * x[key]) for x in c[interval].values()]
+    return f"{min(v)} %" if min(v) == max(v) else f"{min(v)}-{max(v)} %"
+
+
+def detectable(by: dict, share: float = 0.9) -> str:
+    """The smallest planted effect the rule names ('pays' below 1, 'costs' above) in at least
+    ``share`` of cells, and the largest it does not, from the planted-truth table ``by``
+    (planted ratio -> entry); "" without planted effects."""
+    eff = sorted((abs(math.log(float(r))), r, x["verdicts"]["pays" if float(r) < 1 else "costs"])
+                 for r, x in by.items() if float(r) != 1)  # fmt: skip
+    if not eff:
+        return ""
+    first = next((i for i, (_, _, w) in enumerate(eff) if w >= share), None)
+    if first is None:
+        return f"none of the planted ratios is named in {100 * share:.0f} % of cells"
+    said = f"{eff[first][1]} ({100 * eff[first][2]:.0f} %)"
+    if first:
+        said += f"; the smaller {eff[first - 1][1]} {100 * eff[first - 1][2]:.0f} %"
+    return said
 
 
 def _coverage(record: dict) -> str:
@@ -336,8 +377,9 @@ def _coverage(record: dict) -> str:
             + (f"; below DESIGN §7.6's 90 % for {', '.join(short)}." if short else
                ", at or above DESIGN §7.6's 90 %.") if acc else "")  # fmt: skip
     power = (f" Its power, both pose sources given the planted word, with {KEY}'s noise: "
-             + ", ".join(f"{100 * x['correct']:.0f} % at {r}" for r, x in ba.items()) + "."
-             if ba else "")  # fmt: skip
+             + ", ".join(f"{100 * x['correct']:.0f} % at {r}" for r, x in ba.items())
+             + ". The smallest planted effect it names ('pays' below 1, 'costs' above) in 90 % "
+             f"of cells: {detectable(ba)}." if ba else "")  # fmt: skip
     return "\n".join([
         f"**The rule on planted truth.** Synthetic pairs with the defaults' layout "
         f"({c0['clusters']} seeds as clusters, {c0['pairs']} both-stable pairs) and the "
