@@ -476,20 +476,41 @@ def _apart(t: dict | None, seeds: int | None) -> str:
             f"tested apart: {', '.join(said) or 'too few cells'}.")
 
 
+def _extends() -> str:
+    """Which tuned arms' free settings begin with another arm's (``tuning.FREE``), by base."""
+    from analysis import tuning
+
+    by: dict = {}
+    for a, fa in tuning.FREE.items():
+        base = [b for b, fb in tuning.FREE.items() if len(fb) < len(fa) and fa[:len(fb)] == fb]
+        if base:
+            by.setdefault(max(base, key=lambda b: len(tuning.FREE[b])), []).append(a)
+    return "; ".join(f"{', '.join(_lbl(a) for a in arms)} on {_lbl(b)}'s"
+                     for b, arms in by.items())
+
+
 def _tuning(record: dict) -> str:
-    """Per tuned arm and pose source: whether its restarts agree, and optima on a box edge."""
+    """Per tuned arm and pose source: its budget (free settings, evaluations), whether its
+    restarts agree, and optima on a box edge."""
     rows = []
     for p, arms in record["tuning"]["arms"].items():
         for a, t in arms.items():
             g = t["agreement"]
-            rows.append([a, p, f"{'agree' if g['agree'] else 'disagree'} (spread "
-                               f"{g['spread']:.3g}, tolerance {g['tolerance']:.3g})",
+            rows.append([a, p, str(len(t["free"])), f"{t['evaluations']:,}",
+                         f"{'agree' if g['agree'] else 'disagree'} (spread "
+                         f"{g['spread']:.3g}, tolerance {g['tolerance']:.3g})",
                          ", ".join(e["setting"] + " " + e["edge"] for e in t["edges"]) or "—"])
+    b = record["tuning"]["budget"]
+    one = next(iter(next(iter(record["tuning"]["arms"].values())).values()))
     return "\n".join([
-        "**Tuning.** Two restarts per arm and pose source; they disagree when their spread is "
-        "above 5 % of the best objective (the tolerance). An optimum on a box edge names the "
-        "setting and the edge.", "",
-        *common.md_table(["arm", "pose", "restarts", "optimum on a box edge"], rows)])
+        f"**Tuning.** {b['restarts']} restarts per arm and pose source of {b['per_setting']} "
+        f"evaluations per free setting, each evaluation {one['runs_per_evaluation']} training "
+        "runs. The budget is per setting, not per arm: an arm that extends another's settings "
+        f"({_extends()}) searches the shared ones within a larger budget. Restarts disagree "
+        "when their spread is above 5 % of the best objective (the tolerance). An optimum on a "
+        "box edge names the setting and the edge.", "",
+        *common.md_table(["arm", "pose", "free settings", "evaluations", "restarts",
+                          "optimum on a box edge"], rows)])
 
 
 def _extra(record: dict) -> str:
