@@ -1,7 +1,7 @@
 """When does adaptation pay?  The regime study as a matched design (issue 22; DESIGN §7).
 
 1. **Matched arms**: every arm (the fixed PID, APID, IAPID-NN-DEKF, the oracle IAPID, BSC,
-   DA-NN, adaptive BSC) runs on the same pose, with the pose source a factor (``raw``: the
+   DA-NN, adaptive BSC, NMPC) runs on the same pose, with the pose source a factor (``raw``: the
    measurement; ``filtered``: the pose EKF's estimate, for every arm).  The paper's asymmetric
    comparison (IAPID on the filtered pose against APID on the raw one) is a separate, labelled
    row.  :func:`check` reads each arm's settings from the scenarios its runs were made from and
@@ -11,7 +11,9 @@
    plants and trajectories disjoint from the evaluation, with the same evaluations per free
    setting; results at the tuned settings and at the defaults.
 3. **Mechanisms** and trajectories: ``analysis.regimes.design``.
-4. **Endpoints** and 5. **one model**: ``analysis.regimes.stats``.
+4. **Endpoints** and 5. **one model**: ``analysis.regimes.stats``, for the contrasts of
+   :data:`CONTRASTS` (IAPID - APID, APID - PID, best adaptive - best fixed, oracle - IAPID,
+   adaptive BSC - BSC); each adaptive arm against itself frozen: ``analysis.regimes.frozen``.
 
 Runs: one sweep (``wmr.engine.sweep``) per (settings level, pose source) over the mechanism x
 trajectory scenarios and every arm, the tuned settings as single-level factors; the MuJoCo
