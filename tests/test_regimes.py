@@ -663,7 +663,22 @@ def test_the_smallest_detected_effect_is_read_from_the_planted_table_by_its_size
     by = {"1": entry(0.02, 0.02), "0.97": entry(pays=0.5), "1.1": entry(costs=0.8),
           "0.9": entry(pays=0.95)}  # fmt: skip
     # |log 0.97| < |log 1.1| < |log 0.9|: 0.9 is the first named in 90 %, 1.1 the one before it
-    assert detectable(by) == "0.9 (95 %); the smaller 1.1 80 %"
+    assert detectable(by) == "0.9 (95 %); the smaller 1.1 in 80 % of cells"
     assert detectable({**by, "0.97": entry(pays=0.91)}) == "0.97 (91 %)"
-    assert detectable({**by, "0.9": entry(pays=0.5)}).startswith("none of the planted ratios")
+    assert detectable({**by, "0.9": entry(pays=0.5)}).startswith("none (no planted ratio")
     assert detectable({"1": entry()}) == ""
+
+
+def test_the_coverage_at_a_subset_of_mechanisms_uses_only_their_pairs():
+    """The tuned layout's coverage is measured on the simulated plants only: ``mechanisms``
+    drops the others' pairs before the noise is estimated (a mechanism with loud noise left out
+    does not widen the kept one's intervals)."""
+    frame = _layout(6, 0.003, 0.01)
+    loud = frame.mechanism == "lag"
+    frame.loc[loud, "delta"] = rcov.simulate(frame[loud], {"lag": {"seed_sd": 0.3,
+                                                                   "pair_sd": 0.3}},
+                                             1.0, np.random.default_rng(5)).delta.to_numpy()
+    c = rcov.coverage(frame, replicates=4, seed=3, use_t=(True,), mechanisms=("ideal",))
+    assert c["mechanisms"] == ["ideal"] and c["pairs"] == int((~loud).sum())
+    assert set(c["noise"]) == {"ideal"} and c["noise"]["ideal"]["pair_sd"] < 0.02
+    assert c["intervals"]["t(G-1)"]["0.9"]["verdicts"]["pays"] == 1.0

@@ -141,6 +141,7 @@ def notes(record: dict) -> str:
     from analysis.regimes import frozen  # (it words its cells by this module's rule)
 
     blocks = [*_answer(record), _reading(), _defaults(record), _coverage(record),
+              _coverage_tuned(record),
               _tracking(record), *_per_pose(record), frozen.notes(record), _interactions(record),
               _tuning(record),
               _extra(record), _rates(record), _recovery(record), _cost(record)]  # fmt: skip
@@ -345,10 +346,10 @@ def detectable(by: dict, share: float = 0.9) -> str:
         return ""
     first = next((i for i, (_, _, w) in enumerate(eff) if w >= share), None)
     if first is None:
-        return f"none of the planted ratios is named in {100 * share:.0f} % of cells"
-    said = f"{eff[first][1]} ({100 * eff[first][2]:.0f} %)"
+        return f"none (no planted ratio is named in {100 * share:.0f} % of cells)"
+    said = f"{eff[first][1]} ({100 * eff[first][2]:.0f} %)"  # (its share of cells)
     if first:
-        said += f"; the smaller {eff[first - 1][1]} {100 * eff[first - 1][2]:.0f} %"
+        said += f"; the smaller {eff[first - 1][1]} in {100 * eff[first - 1][2]:.0f} % of cells"
     return said
 
 
@@ -392,6 +393,33 @@ def _coverage(record: dict) -> str:
         *common.md_table(["contrast", "interval", "planted", "covered (cells)",
                           "covered (mechanisms)", "pays", "costs", "same", "undecided",
                           "poses contradict", "accepts truth", "decides right"], rows)])
+
+
+def _coverage_tuned(record: dict) -> str:
+    """The rule on planted truth at the tuned settings' layout: a sentence and a table ("" for
+    a record without it)."""
+    cov = (record.get("coverage_tuned") or {}).get("contrasts", {})
+    if not cov:
+        return ""
+    rows, parts = [], []
+    for name, c in cov.items():
+        t = c["intervals"]["t(G-1)"]
+        for r, x in t.items():
+            rows.append([name, r, f"{100 * x['coverage_cells']:.1f} %",
+                         f"{100 * x['accepts']:.0f} %", f"{100 * x['correct']:.0f} %"])
+        acc = [round(100 * x["accepts"]) for x in t.values()]
+        rng = f"{min(acc)} %" if min(acc) == max(acc) else f"{min(acc)}-{max(acc)} %"
+        parts.append(f"For {name} ({c['pairs']} pairs, {c['clusters']} seeds) it accepts the "
+                     f"truth in {rng}; the smallest effect named in 90 % of cells: "
+                     f"{detectable(t)}.")
+    c0 = next(iter(cov.values()))
+    return "\n".join([
+        "**The rule on planted truth at the tuned layout.** The same synthetic pairs on the "
+        "tuned settings' both-stable pairs of the simulated plants (fewer where an arm diverges), "
+        f"{c0['replicates']} replicates per planted ratio, Student t at G - 1 df. "
+        + " ".join(parts), "",
+        *common.md_table(["contrast", "planted", "covered (cells)", "accepts truth",
+                          "decides right"], rows)])
 
 
 #: The verdict words of the planted-truth table's columns.
