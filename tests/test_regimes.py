@@ -655,7 +655,7 @@ def test_the_rate_ratio_interval_is_clustered_by_seed():
 
 
 def test_the_smallest_detected_effect_is_read_from_the_planted_table_by_its_size():
-    from analysis.regimes.report import detectable
+    from analysis.regimes.planted import detectable
 
     def entry(pays=0.0, costs=0.0):
         return {"verdicts": {"pays": pays, "costs": costs}}
