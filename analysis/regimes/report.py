@@ -21,6 +21,11 @@ __all__ = ["verdicts", "classify", "notes", "table", "figure", "standing_count",
 BSC = "adaptive-bsc - backstepping"
 
 
+def _kinematic(record: dict) -> list[str]:
+    """The record's simulated plants (its mechanisms off the MuJoCo robot), in order."""
+    return [m for m in record["mechanisms"] if m not in record["design"].get("mujoco", ())]
+
+
 def _arms_of(record: dict, name: str, pose: str) -> tuple[str, str]:
     if name == KEY:
         b = record["best"][pose]
@@ -67,7 +72,7 @@ def inert(record: dict) -> dict[str, tuple[str, list[str], int]]:
     plants there are; empty without frozen runs."""
     if not record.get("adaptation"):
         return {}
-    kin = [m for m in record["mechanisms"] if m not in record["design"].get("mujoco", ())]
+    kin = _kinematic(record)
     out = {}
     for pose in record["poses"]:
         a = record["best"][pose]["best-adaptive"]
@@ -87,7 +92,7 @@ def _pays_said(record: dict) -> str:
     against itself switched off (``frozen_word`` "pays", with or without divergence), per pose
     source ("" without frozen runs)."""
     arms = (record.get("adaptation") or {}).get("arms", {})
-    kin = [m for m in record["mechanisms"] if m not in record["design"].get("mujoco", ())]
+    kin = _kinematic(record)
     parts = []
     for a in arms:
         n = {p: sum((frozen_word(record, a, m, p) or "").startswith("pays") for m in kin)
@@ -251,7 +256,7 @@ def bsc_standing(record: dict, only: tuple[str, ...] | None = None) -> str:
     v = record["verdict"]["mechanisms"]
     if not record.get("restart_pairings") or not all(BSC in e for e in v.values()):
         return ""
-    kin = [m for m in v if m not in record["design"].get("mujoco", ())]
+    kin = _kinematic(record)
     return _standing(v, kin, BSC, None, only)
 
 
@@ -266,7 +271,7 @@ def _answer_pairings(record: dict, n_dis: int, n_arms: int) -> list[str]:
     verdicts that stand (with their ratios), the defaults', and how many tuned verdicts the
     restarts leave standing."""
     d, v = record["design"], record["verdict"]["mechanisms"]
-    kin = [m for m in v if m not in d.get("mujoco", ())]
+    kin = _kinematic(record)
     ada, fix = best_label(record, "best-adaptive"), best_label(record, "best-fixed")
     kept, n_cells = standing_count(record)
     mj = " off the MuJoCo robot, where all are withheld" if d.get("mujoco") else ""
