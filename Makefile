@@ -39,9 +39,9 @@ robots: $(STAMP)
 	$(BIN)/python -m analysis.robots --out paper --full
 	$(BIN)/wmr report --out paper
 
-# The calibration study in full (~2e5 runs: under 90 min on 2 workers of an otherwise idle
-# 2-core machine, estimated from the medium level's rate; its store resumes).  The committed
-# record is the medium level (`--level medium`: 42 min wall on the machine shared by four).  `make
+# The calibration study in full (about 2.5e5 runs; not yet timed: at the medium level's 25-37
+# runs/s on 2 workers that is 1.9-2.7 h, over the 90-minute target; its store resumes).  The
+# committed record is the medium level (`--level medium`: 45 min from an empty store).  `make
 # reproduce` only re-renders the committed record.
 calibration: $(STAMP)
 	$(BIN)/python -m analysis.calibration --out paper --full --workers 2

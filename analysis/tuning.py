@@ -49,7 +49,8 @@ from wmr import scenario as scn
 
 __all__ = ["Free", "Arm", "Budget", "ARMS", "arm", "RMSE_SCALE", "DIVERGED_SCORE", "EDGE_TOL",
            "AGREE_TOL", "bounded", "values_at", "unit_of_defaults", "settings_table",
-           "scenario", "minimise", "agreement", "edges", "objective", "tune_arm"]  # fmt: skip
+           "scenario", "minimise", "agreement", "edges", "objective", "tune_arm",
+           "shared_cache"]  # fmt: skip
 
 #: Scale of the bounded transform ``r / (r + s)`` [m]: an RMSE of 5 cm scores 0.5.
 RMSE_SCALE = 0.05
@@ -345,6 +346,15 @@ def objective(rows: Sequence) -> float:
     """The mean score (:func:`bounded`) of a point's training runs
     (``wmr.closedloop.result.Row``)."""
     return float(np.mean(bounded([r.tail_position for r in rows], [r.diverged for r in rows])))
+
+
+def shared_cache() -> Path:
+    """The tuning records shared by the studies (``<studies folder>/tuning``): a record is
+    read back only under the digest of everything it depends on, so any study asking for the
+    same arm, training and budget on the same code reuses it."""
+    from wmr.engine.store import studies_folder
+
+    return studies_folder() / "tuning"
 
 
 def _digest(obj) -> str:

@@ -372,40 +372,93 @@ def test_fit_scenarios_are_the_settings(tmp_path):
         assert "A FIT, not the suite's defaults" in (tmp_path / f"{name}.toml").read_text()
 
 
-def test_pareto_front_is_the_non_dominated_set():
-    from analysis.calibration.fair import pareto_front
+def _held(r, failed=None):
+    """A held-out result (seeds, cells, metrics + 1) with tail position RMSE ``r``."""
+    from analysis.calibration.store import METRICS
 
-    rng = np.random.default_rng(2)
-    cost, effort = rng.random(60), rng.random(60)
-    front = set(pareto_front(cost, effort).tolist())
-    brute = {i for i in range(60) if not any(cost[j] <= cost[i] and effort[j] <= effort[i]
-                                             and (cost[j], effort[j]) != (cost[i], effort[i])
-                                             for j in range(60))}  # fmt: skip
-    assert front == brute
+    r = np.asarray(r, dtype=float)
+    arr = np.full((*r.shape, len(METRICS) + 1), 0.01)
+    arr[..., METRICS.index("tail_position")] = r
+    arr[..., -1] = 0
+    if failed is not None:
+        arr[failed, :-1] = np.nan
+        arr[failed, -1] = 1
+    return arr
 
 
-def test_fair_tuning_gains_span_their_ranges():
-    from analysis.calibration.fair import FREE_GAINS, gains_at
+def test_fair_paired_ratio_recovers_a_planted_ratio_and_counts_divergence_apart():
+    """An arm 1.2 times another on every run: ratio 1.2 exactly (a zero-width interval, not a
+    tie); with seed noise the interval covers 1.2 about 95 % of the time; a diverged run
+    leaves the RMSE pairs and counts in McNemar only."""
+    from analysis.calibration.fair import paired
 
-    for c, spec in FREE_GAINS.items():
-        lo, hi = gains_at(c, [0.0] * len(spec)), gains_at(c, [1.0] * len(spec))
-        assert lo == pytest.approx([g[1] for g in spec])
-        assert hi == pytest.approx([g[2] for g in spec])
-        mid = gains_at(c, [0.5] * len(spec))
-        for (_, a, b, log), m in zip(spec, mid, strict=True):
-            assert m == pytest.approx(math.sqrt(a * b) if log else (a + b) / 2)
-        # each gain set is valid for the controller
-        from wmr import controllers
+    rng = np.random.default_rng(4)
+    b = np.exp(rng.normal(-3.0, 0.5, (10, 6)))
+    p = paired(_held(1.2 * b), _held(b))
+    assert p["ratio"] == pytest.approx(1.2, rel=1e-12) and not p["tie"]
+    assert p["ratio_ci"] == pytest.approx([1.2, 1.2], rel=1e-9)
+    hits = 0
+    for _rep in range(200):
+        noise = np.exp(rng.normal(0.0, 0.1, (10, 1)))  # a per-seed factor on every cell
+        lo, hi = paired(_held(1.2 * b * noise), _held(b))["ci"]
+        hits += lo <= math.log(1.2) <= hi
+    assert 180 <= hits <= 200  # 95 % nominal: 190 expected
+    failed = np.zeros((10, 6), bool)
+    failed[0, 0] = failed[3, 2] = True
+    p = paired(_held(1.2 * b, failed), _held(b))
+    assert p["stable_pairs"] == 58 and p["pairs"] == 60
+    assert p["divergence"]["a_only"] == 2 and p["divergence"]["b_only"] == 0
+    assert p["ratio"] == pytest.approx(1.2, rel=1e-12)  # no placeholder entered the mean
 
-        controllers.get(c).Settings(gains=mid)
+
+def test_fair_arms_differ_only_in_the_law():
+    """DESIGN §7.1: the matched arms' held-out runs share pose source, plant, noise, limits,
+    reference and seeds cell by cell; the paper's arm differs in its pose source only."""
+    import dataclasses
+
+    from analysis.calibration import fair, stages
+
+    budget = stages.QUICK.fair
+    tasks = {a.name: fair.held_out_task(a, None, budget) for a in fair.arms()}
+    ref = tasks[f"backstepping@{fair.POSE}"]
+    for name, t in tasks.items():
+        assert t.seeds == ref.seeds and len(t.cases) == len(ref.cases)
+        for (sc, c, _), (sr, _, _) in zip(t.cases, ref.cases, strict=True):
+            assert c == name.split("@")[0]
+            if name.endswith("@filtered"):
+                assert sc.estimator.pose_source == "filtered"
+                sc = dataclasses.replace(sc, estimator=sr.estimator)
+            else:
+                assert sc.estimator.pose_source == fair.POSE
+            assert dataclasses.replace(sc, controllers={}, source="") == \
+                dataclasses.replace(sr, controllers={}, source="")
+    plants = {sc.name.split("@")[1] for sc, _, _ in ref.cases}
+    assert plants == set(budget.plants)
+
+
+def test_fair_tuning_is_the_regime_studys():
+    """The medium and full levels tune with the regime study's full-level budget and training
+    documents, so the shared stage's records (one per arm) serve both studies."""
+    from dataclasses import asdict
+
+    from analysis import regimes, tuning
+    from analysis.calibration import stages
+    from analysis.regimes import design
+
+    d = regimes.LEVELS["full"]
+    want = tuning.Budget(per_setting=d["per_setting"], seeds=tuple(d["train_seeds"]))
+    for level in (stages.MEDIUM, stages.FULL):
+        assert asdict(level.fair.tuning()) == asdict(want)
+        assert design.training_documents(level.fair.train_duration, level.fair.training) == \
+            design.training_documents(d["train_duration"], d["training"])
 
 
 # ---------------------------------------------------------------------------------------------
 # The study: a quick run (every stage, a few points, short runs) and the committed record
 
 
-REQUIRED = ("prior", "points", "rule", "planted", "verdict", "best_fit", "p_paper_order",
-            "sensitivity", "fair_tuning")  # fmt: skip
+REQUIRED = ("prior", "points", "rule", "planted", "sequential", "verdict", "best_fit",
+            "p_paper_order", "sensitivity", "fair_tuning")  # fmt: skip
 
 
 def _points_agree(record: dict, out: Path) -> None:
@@ -473,6 +526,78 @@ def _rerun_planted(record: dict, t: int) -> None:
     assert got == pytest.approx(pl["max_implausibility_truth"][t], rel=1e-9)
 
 
+# ---------------------------------------------------------------------------------------------
+# The sequential design (issue 23 item 2): the emulator and its implausibility
+
+
+def test_loo_ratio_is_brute_force_leave_one_out():
+    """The closed-form leave-one-out errors (Rasmussen & Williams eq. 5.12) against refitting
+    the process without each point in turn (same kernel): the same mean squared standardised
+    error."""
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+
+    from analysis.calibration.waves import loo_ratio
+
+    rng = np.random.default_rng(2)
+    X = rng.random((25, 2))
+    y = np.sin(4 * X[:, 0]) + X[:, 1] ** 2 + rng.normal(0, 0.05, 25)
+    kern = ConstantKernel(0.7) * RBF([0.3, 0.8]) + WhiteKernel(0.01)
+    gp = GaussianProcessRegressor(kern, optimizer=None).fit(X, y)
+    z = []
+    for i in range(25):
+        m = np.arange(25) != i
+        g = GaussianProcessRegressor(kern, optimizer=None).fit(X[m], y[m])
+        mu, sd = g.predict(X[i:i + 1], return_std=True)
+        z.append((y[i] - mu[0]) / sd[0])
+    assert loo_ratio(gp) == pytest.approx(np.mean(np.square(z)), rel=1e-6)
+
+
+def test_emulator_learns_a_planted_function_with_honest_variances():
+    """36 smooth planted functions of 2 settings with noise: the fitted emulator predicts new
+    points to well under the functions' spread, and its standardised errors against the true
+    values are about standard normal (>= 95 % within +-3: the validity rule), not inflated
+    tenfold (mean square > 0.05).  A number left out where it 'diverged' is predicted too."""
+    from analysis.calibration.waves import Emulator
+
+    rng = np.random.default_rng(5)
+    a, b = rng.normal(0, 1, 36), rng.normal(0, 1, 36)
+
+    def f(x):
+        return np.outer(np.sin(3 * x[:, 0]), a) + np.outer(x[:, 1] ** 2, b)
+
+    X = rng.random((60, 2))
+    Y = f(X) + rng.normal(0, 0.02, (60, 36))
+    ok = np.ones_like(Y, bool)
+    ok[:5, 0] = False  # number 0 "diverged" at five points: left out of its process
+    em = Emulator(jobs=1).fit(X, Y, ok)
+    Xt = rng.random((200, 2))
+    mean, var = em.predict(Xt)
+    err = mean - f(Xt)
+    assert np.sqrt(np.mean(err**2)) < 0.1 * np.std(f(Xt))
+    e = err / np.sqrt(var + 0.02**2)
+    assert np.mean(np.abs(e) <= 3) >= 0.95 and np.mean(e**2) > 0.05
+    assert em.gps[0].X_train_.shape[0] == 55 and em.gps[1].X_train_.shape[0] == 60
+    more = em.condition(Xt[:10], f(Xt[:10]), np.ones((10, 36), bool))
+    assert more.gps[3].kernel_ == em.gps[3].kernel_  # later waves keep the fitted kernel
+    assert np.abs(more.predict(Xt[:10])[0] - f(Xt[:10])).max() < np.abs(err[:10]).max()
+
+
+def test_emulator_implausibility_closed_form():
+    """One number off the target by 2 log units, the others exact: its implausibility is 2
+    over the root of its four variances (emulator, seed, rounding, discrepancy)."""
+    from analysis.calibration import rule
+    from analysis.calibration.waves import implausibility
+
+    z = prior.PAPER.copy()
+    mean = np.log(z)[None].repeat(2, axis=0)
+    mean[1, 7] += 2.0
+    var, v_seed = np.full((2, 36), 0.04), np.full(36, 0.01)
+    got = implausibility(mean, var, z, v_seed)
+    want = 2.0 / math.sqrt(0.05 + (prior.ROUNDING[7] / z[7]) ** 2 / 3 + math.log1p(rule.DELTA) ** 2)
+    assert got[0] == 0.0 and got[1] == pytest.approx(want, rel=1e-12)
+
+
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
     from analysis import calibration
@@ -500,13 +625,16 @@ def test_quick_study_is_whole_and_checks(quick):
         sc = scn.load(out / f)
         assert sc.settings("backstepping").gains == tuple(
             record["best_fit"]["settings"][k] for k in ("bsc_k1", "bsc_k2", "bsc_k3"))
-    # every controller had the same tuning budget
-    nfev = {t["nfev"] for t in record["fair_tuning"]["controllers"].values()}
-    assert nfev == {record["fair_tuning"]["budget"]["evaluations"]}
+    # every arm had the budget rule's evaluations (per free setting), and was run held out
+    f = record["fair_tuning"]
+    for t in f["arms"].values():
+        assert t["evaluations"] == f["budget"]["per_setting"] * len(t["free"]) * 2
+        assert t["held_out"]["divergence"]["n"] == len(f["held_out"]["cells"])
     text = calibration.render(record)
     for q in ("The answer", "Does any plausible setting reproduce", "Closest fit",
               "How likely is the paper's ranking", "Which unstated settings decide it",
-              "Who wins under fair tuning", "retracted"):  # fmt: skip
+              "Who wins under fair tuning", "Can a search find the truth",
+              "retracted"):  # fmt: skip
         assert q in text
     assert "QUICK" in text
     assert prose.long_sentences(text) == []  # the prose rule at this level's record too
@@ -550,8 +678,17 @@ def test_check_catches_an_inconsistent_record(quick):
     with pytest.raises(AssertionError):
         calibration.check(bad)
     bad = copy.deepcopy(record)
-    first = next(iter(bad["fair_tuning"]["controllers"].values()))
-    first["nfev"] += 1  # an unequal budget
+    first = next(iter(bad["fair_tuning"]["arms"].values()))
+    first["evaluations"] += 1  # an unequal budget
+    with pytest.raises(AssertionError):
+        calibration.check(bad)
+    bad = copy.deepcopy(record)
+    bad["sequential"]["recovery"]["wave0"]["recovered"]["k"] += 1  # not its truths' count
+    with pytest.raises(AssertionError):
+        calibration.check(bad)
+    bad = copy.deepcopy(record)
+    bad["sequential"]["paper"]["retained"].append(1.0)  # a region that grew back
+    bad["sequential"]["paper"]["runs"].append(0)
     with pytest.raises(AssertionError):
         calibration.check(bad)
 
@@ -633,10 +770,10 @@ def test_power_over_continuous_moves_counts_the_moves_that_keep_discrete_levels(
     _, record = quick
     pl = record["planted"]
     _, space = _space(record)
-    rng = np.random.default_rng(pl["generator_seed"])
-    truths = rng.random((pl["n_truths"], len(space.names)))
-    assert truths.tolist() == pl["truths_u"]
-    for t, u in enumerate(truths):
+    for t in range(pl["n_truths"]):
+        rng = np.random.default_rng([pl["generator_seed"], t])  # truth t's own generator
+        u = rng.random(len(space.names))
+        assert u.tolist() == pl["truths_u"][t]
         for j, d in enumerate(rule.DISTANCES):
             v, _ = rule._away(rng, u, d)
             a, b = space.values(u), space.values(v)

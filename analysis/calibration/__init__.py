@@ -10,27 +10,33 @@ with their provenance, ``analysis.calibration.prior``), then asks:
 2. **A space-filling design** (scrambled Sobol, ``2 x 2**design_m`` points x 2 seeds, common
    random numbers, through ``wmr.engine``): the range each of the 36 numbers spans, the
    starting points of the fit, the sample of the sensitivity and ranking statistics.
-3. **The rule and its coverage** (``_calibration_rule``): history matching's implausibility on
-   log RMSE with K >= 10 seeds per candidate, the printed rounding and a stated model
-   discrepancy, each number against Student t at its Welch-Satterthwaite d.o.f. and the
+3. **The rule and its coverage** (``analysis.calibration.rule``): history matching's
+   implausibility on log RMSE with K >= 10 seeds per candidate, the printed rounding and a
+   stated model discrepancy, each number against Student t at its Welch-Satterthwaite d.o.f. and the
    Sidak level (the maximum on the normal scale: c = 3.19); a diverged run where the paper
    has a number rules the candidate out; its acceptance of planted truths (settings from the
    prior whose numbers the suite made at seeds the rule never saw, rounded as printed) and its
    power at unit-cube distances 0.1, 0.2, 0.3 (also over continuous-only moves), with exact
-   intervals, at the default threshold and the earlier t one.
-4. **The closest fit** (``_calibration_fit``): CMA-ES on the deterministic rms log ratio of the
-   finite runs plus a stated divergence penalty (fixed common seeds), >= 5 restarts, their
-   spread, the best fit's box edges; the fit written as labelled scenario files
+   intervals, at the default threshold and the earlier t one.  Then **the sequential
+   design** (``analysis.calibration.waves``): history-matching waves on a Gaussian-process
+   emulator fitted on the design and validated at the planted truths, for the paper's tables
+   and for planted truths (their recovery rate and retained volume).
+4. **The closest fit** (``analysis.calibration.fit``): CMA-ES on the deterministic rms log
+   ratio of the finite runs plus a stated divergence penalty (fixed common seeds), >= 5
+   restarts, their spread, the best fit's box edges; the fit written as labelled scenario files
    (``wmr/scenarios/paper-fit/``; the defaults do not move).
 5. **The verdict**: the rule against the paper's tables at the design's closest points and
    every restart's end, judged at seeds disjoint from those that selected them; the earlier
    "0 of 4,096 feasible" (a 2-seed tolerance that rejected the truth) is retracted.
 6. **Robustness of the ranking** over the prior x seeds: P(the paper's order), pairwise win
    probabilities (Clopper-Pearson over the points), Kendall tau; PAWN indices with ties
-   (``_calibration_pawn``) on the design's own points.
-7. **Fair tuning** (interim: the shared tuning stage, analysis/tuning.py, replaces it): each
-   controller's free gains tuned with the same budget on training trajectories, evaluated on
-   the paper's (held out); a difference inside its paired interval is a tie.
+   (``analysis.calibration.pawn``) on the design's own points.
+7. **Fair tuning** (``analysis.calibration.fair``, through the shared tuning stage
+   ``analysis.tuning``): the paper's four controllers, NMPC and the adaptive backstepping on
+   one pose source, every free setting (the adaptation's too) tuned with a budget per setting
+   on the regime study's training plants and trajectories, evaluated on the paper's scenarios
+   on six held-out plants at unseen seeds; divergence its own endpoint, a difference inside
+   its paired interval a tie.
 
 Nothing is tuned to make a controller win; the fit is a separate, labelled result.
 
@@ -53,8 +59,8 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis import common
-from analysis.calibration import figures, prior, rule, stages
+from analysis import common, tuning
+from analysis.calibration import figures, prior, rule, stages, waves
 from analysis.calibration import fit as fitmod
 from analysis.calibration.fair import fair_tuning
 from analysis.calibration.report import TITLE, notes, render, table
@@ -239,35 +245,6 @@ def _verdict(ev, level: stages.Level, space: stages.Space, des: dict, best: dict
                      "not judged"}  # fmt: skip
 
 
-def _fair_ties(fair: dict) -> dict:
-    """The best held-out controller against each other, paired over the test seeds: the mean
-    difference of log position RMSE (X minus the best) with its 95 % t interval; a difference
-    whose interval contains 0 is a **tie** (DESIGN §7.4)."""
-    from scipy import stats
-
-    best = fair["ranking_held_out"][0]
-    pb = np.log(np.array(fair["controllers"][best]["held_out"]["position_per_seed"]))
-    paired, tie = {}, []
-    for c, t in fair["controllers"].items():
-        if c == best:
-            continue
-        d = np.log(np.array(t["held_out"]["position_per_seed"])) - pb
-        n = len(d)
-        if n > 1:
-            half = float(stats.t.ppf(0.975, n - 1) * d.std(ddof=1) / math.sqrt(n))
-            ci = [float(d.mean()) - half, float(d.mean()) + half]
-        else:  # one seed: no interval, so no difference can be told from a tie
-            ci = None
-        is_tie = ci is None or ci[0] <= 0.0
-        paired[c] = {"mean_log_difference": float(d.mean()), "ci": ci, "seeds": n,
-                     "tie": bool(is_tie)}  # fmt: skip
-        if is_tie:
-            tie.append(c)
-    return {**fair, "paired_with_best": paired, "tie_with_best": tie,
-            "tie_rule": "paired over the test seeds: mean difference of log position RMSE "
-                        "(X - best), 95 % t interval; a tie when it reaches 0"}  # fmt: skip
-
-
 def _rule_json(level: stages.Level) -> dict:
     return {"form": "history-matching implausibility (Craig et al. 1997; Vernon et al. 2010 "
                     "eq. 6) on log RMSE: I_i = |log z_i - m_i| / sqrt(s_i^2 (1 + 1/K) + "
@@ -309,11 +286,15 @@ def compute(out: Path, level_name: str, workers: int | None, progress=None) -> d
         plant = rule.planted(ev, space, level.n_truths, level.rule_seeds)
         plant["seconds"] = round(time.perf_counter() - t1, 1)
         t1 = time.perf_counter()
+        seq = waves.study(ev, level, space, des, plant["truths_u"], level.waves)
+        seq["seconds"] = round(time.perf_counter() - t1, 1)
+        t1 = time.perf_counter()
         best = fitmod.cmaes_fit(ev, space, des, level.seeds, level.verdict_seeds,
                                 level.cma_restarts, level.cma_popsize, level.cma_maxfevals)
         best["seconds"] = round(time.perf_counter() - t1, 1)
         verdict = _verdict(ev, level, space, des, best)
-        fair = _fair_ties(fair_tuning(ev, level.fair))
+        cache = Path(out) / ".calibration-tuning" if quick else tuning.shared_cache()
+        fair = fair_tuning(ev, level.fair, cache)
         cost = {"runs_in_store": ev.runs_in_store(), "runs_this_time": ev.runs_this_time,
                 "seconds_running": round(ev.seconds, 1), "engine": ev.engine_name,
                 "seconds": round(time.perf_counter() - t0, 1),
@@ -332,7 +313,7 @@ def compute(out: Path, level_name: str, workers: int | None, progress=None) -> d
                                             prior.ROUNDING, strict=True)},
             "screening": scr, "seeds": list(level.seeds),
             "points": _points(des, space, out), "rule": _rule_json(level),
-            "planted": plant, "verdict": verdict,
+            "planted": plant, "sequential": seq, "verdict": verdict,
             "best_fit": {**best, "scenario_files": [f"wmr/scenarios/paper-fit/{f}" if not quick
                                                     else f"paper-fit/{f}" for f in files]},
             "p_paper_order": rank,
@@ -391,7 +372,9 @@ def check(record: dict) -> None:
     nominal 0.95 (at the quick level: its exact interval reaches 0.9) and its power is recorded
     at every distance; the verdict follows from its candidates; the fit's restarts (>= 5 but
     at the quick level) and their spread agree with their parts; every probability lies in its
-    exact interval; every controller was tuned with the same budget."""
+    exact interval; every arm of the fair tuning had its budget rule's evaluations and the
+    paired verdicts follow from their intervals; the sequential design's emulator validity,
+    nested waves and recovery counts follow from their parts."""
     shared = [n for n, p in record["prior"].items() if p["group"] == "shared"]
     assert len(shared) >= 8, shared
     level = stages.LEVELS[record["level"]]
@@ -455,11 +438,55 @@ def check(record: dict) -> None:
             assert p["ci_low"] == 0.0 < p["ci_high"], p  # a zero count: its upper bound
     cost = record["cost"]
     assert cost["runs_total"] >= cost["runs_this_time"], cost
-    fair = record["fair_tuning"]
-    budget = fair["budget"]["evaluations"]
-    for c, t in fair["controllers"].items():
-        assert t["nfev"] == budget, (c, t["nfev"], budget)
-    assert sorted(fair["ranking_held_out"]) == sorted(prior.CONTROLLERS)
+    _check_fair(record["fair_tuning"])
+    _check_sequential(record["sequential"])
+
+
+def _check_sequential(seq: dict) -> None:
+    """The emulator's validity follows from its errors; every wave's retained region is
+    nested in the one before; the recovery counts are those of their truths."""
+    val = seq["emulator"]["validation"]
+    e = np.abs(np.asarray(val["errors"]))
+    assert val["values"] == e.size
+    assert math.isclose(val["within_3"], float(np.mean(e <= 3)), abs_tol=1e-3), val["within_3"]
+    assert val["valid"] == (val["within_3"] >= waves.VALID_WITHIN_3)
+    rec = seq["recovery"]
+    for s in [seq["paper"], *rec["waves"]["per_truth"]]:
+        v = s["retained"]
+        assert len(v) == len(s["runs"]) <= seq["waves"] + 1, s
+        assert all(b <= a for a, b in zip(v, v[1:], strict=False)), v  # nested waves
+    w0 = rec["wave0"]
+    assert w0["recovered"]["k"] == sum(w0["truth_retained"]), w0["recovered"]
+    assert w0["recovered"]["n"] == len(w0["truth_retained"]) == len(w0["retained_volume"])
+    wv, per = rec["waves"], rec["waves"]["per_truth"]
+    assert wv["truths"] == len(per) == wv["recovered"]["n"]
+    assert wv["recovered"]["k"] == sum(s["truth_retained"][-1] for s in per)
+    assert wv["volume_at_most_5pc"]["k"] == sum(s["retained"][-1] <= 0.05 for s in per)
+
+
+def _check_fair(fair: dict) -> None:
+    """Every arm had the budget rule's evaluations; the matched arms are ranked, the stable
+    ones first by mean log RMSE; each paired verdict follows from its interval."""
+    from analysis.calibration import fair as fairmod
+
+    b = fair["budget"]
+    for name, t in fair["arms"].items():
+        want = b["per_setting"] * len(t["free"])
+        assert t["evaluations_per_restart"] == want, (name, t["evaluations_per_restart"], want)
+        assert t["evaluations"] == want * b["restarts"], (name, t["evaluations"])
+    matched = [f"{c}@{fairmod.POSE}" for c in fairmod.ARMS]
+    assert sorted(fair["ranking"]) == sorted(matched) and fair["best"] == fair["ranking"][0]
+    stable = [n for n in fair["ranking"] if fair["arms"][n]["held_out"]["divergence"]["diverged"]
+              == 0]  # fmt: skip
+    assert fair["ranking"][: len(stable)] == stable
+    scores = [fair["arms"][n]["held_out"]["mean_log_rmse"] for n in stable]
+    assert scores == sorted(scores), scores
+    for name, p in fair["paired_with_best"].items():
+        if p["ci"] is not None:
+            assert p["ci"][0] <= p["mean_log_ratio"] <= p["ci"][1], (name, p)
+            assert p["tie"] == (p["ci"][0] <= 0.0 <= p["ci"][1]), (name, p)
+        assert p["stable_pairs"] <= p["pairs"]
+    assert fair["ties_with_best"] == [n for n, p in fair["paired_with_best"].items() if p["tie"]]
 
 
 def _probabilities(po: dict):

@@ -7,8 +7,8 @@ import numpy as np
 from analysis import common
 from wmr import controllers
 
-__all__ = ["power_curve", "residual_profile", "projections", "sensitivity_bars", "pareto_fronts",
-           "all_figures"]
+__all__ = ["power_curve", "residual_profile", "projections", "sensitivity_bars",
+           "fair_comparison", "waves_figure", "all_figures"]
 
 STEM = "calibration"
 
@@ -166,33 +166,82 @@ def sensitivity_bars(record: dict):
     return fig
 
 
-def pareto_fronts(record: dict):
-    """Fair tuning: each controller's evaluations' Pareto front (position RMSE vs control
-    effort) on the training trajectories, and the same gains held out."""
+def fair_comparison(record: dict):
+    """Fair tuning, held out: each arm's RMSE ratio to the best with its 95 % interval (left),
+    and its share of diverged runs with the exact interval, tuned and at the defaults (right)."""
     import matplotlib.pyplot as plt
 
-    fair = record["fair_tuning"]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), layout="constrained")
-    for c, t in fair["controllers"].items():
-        col, lab = controllers.colour(c), controllers.label(c)
-        f = sorted(t["front"], key=lambda p: p["effort"])
-        axes[0].plot([p["effort"] for p in f], [p["position"] for p in f], "o-", ms=3,
-                     color=col, label=lab)  # fmt: skip
-        h = sorted(t["front_held_out"], key=lambda p: p["held_out_effort"] or 0)
-        axes[1].plot([p["held_out_effort"] for p in h], [p["held_out_position"] for p in h],
-                     "o--", ms=3, color=col, alpha=0.6)  # fmt: skip
-        ho = t["held_out"]
-        axes[1].plot([ho["effort"]], [ho["position"]], "*", ms=14, color=col, mec="k",
-                     label=f"{lab} tuned")  # fmt: skip
-        d = t["default_held_out"]
-        axes[1].plot([d["effort"]], [d["position"]], "s", ms=6, color=col, mfc="none")
-    axes[0].set(xlabel="control effort (RMS of (v, w))", ylabel="mean position RMSE [m]",
-                title="training trajectories: Pareto fronts", yscale="log")  # fmt: skip
-    axes[1].set(xlabel="control effort (RMS of (v, w))", ylabel="mean position RMSE [m]",
-                title="held out (the paper's scenarios): star tuned, square default",
-                yscale="log")  # fmt: skip
-    axes[0].legend(fontsize=8)
-    axes[1].legend(fontsize=7)
+    f = record["fair_tuning"]
+    names = [n for n in f["ranking"] if n != f["best"]]
+    pairs = [f["paired_with_best"][n] for n in names]
+    names.append(f["paper_arm"]["arm"])
+    pairs.append(f["paper_arm"]["against_best"])
+    fig, axes = plt.subplots(1, 2, figsize=(11, 0.5 * len(names) + 2), layout="constrained")
+    y = np.arange(len(names))
+    for i, (n, p) in enumerate(zip(names, pairs, strict=True)):
+        col = controllers.colour(n.split("@")[0])
+        if p["ci"] is not None:
+            lo, hi = p["ratio_ci"]
+            axes[0].errorbar([p["ratio"]], [i], xerr=[[p["ratio"] - lo], [hi - p["ratio"]]],
+                             fmt="o", color=col, capsize=3)  # fmt: skip
+    axes[0].axvline(1.0, color="k", lw=0.8)
+    axes[0].axvspan(1 / 1.05, 1.05, color="0.85", zorder=0)
+    axes[0].set(yticks=y, yticklabels=names, xscale="log",
+                xlabel=f"RMSE ratio to {f['best']} (after the transient; grey: +-5 %)",
+                title="tuned alike, held out")  # fmt: skip
+    arms = list(f["ranking"]) + [f["paper_arm"]["arm"]]
+    for j, (key, mk, off) in enumerate((("held_out", "o", -0.15), ("default_held_out", "s",
+                                                                    0.15))):  # fmt: skip
+        for i, n in enumerate(arms):
+            d = f["arms"][n][key]["divergence"]
+            axes[1].errorbar([d["share"]], [i + off], xerr=[[d["share"] - d["ci_low"]],
+                             [d["ci_high"] - d["share"]]], fmt=mk, capsize=2,
+                             color=controllers.colour(n.split("@")[0]), mfc="none" if j else None,
+                             label=("tuned", "defaults")[j] if i == 0 else None)  # fmt: skip
+    axes[1].set(yticks=np.arange(len(arms)), yticklabels=arms, xlim=(-0.02, 1.02),
+                xlabel="share of held-out runs diverged (Clopper-Pearson 95 %)",
+                title="divergence")  # fmt: skip
+    axes[1].legend(fontsize=8)
+    return fig
+
+
+def waves_figure(record: dict):
+    """The sequential design: the emulator's standardised errors at the planted truths against
+    N(0, 1) (left), and the share of the prior's volume retained after each wave for the
+    paper's tables (black) and for each planted truth (green: its setting retained, red: ruled
+    out), with the 5 % line (right)."""
+    import matplotlib.pyplot as plt
+    from scipy.stats import norm
+
+    seq = record["sequential"]
+    val = seq["emulator"]["validation"]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.0), layout="constrained")
+    ax = axes[0]
+    e = np.clip(np.asarray(val["errors"], dtype=float), -8, 8)
+    ax.hist(e, bins=np.linspace(-8, 8, 49), density=True, color="0.6",
+            label=f"{val['values']} errors (clipped at +-8)")  # fmt: skip
+    g = np.linspace(-8, 8, 321)
+    ax.plot(g, norm.pdf(g), "k", label="N(0, 1)")
+    ax.set(xlabel="(m - E) / sqrt(V + s^2 / K)", ylabel="density",
+           title=f"emulator at {val['points']} planted truths: {100 * val['within_2']:.0f} % "
+                 f"within +-2, {100 * val['within_3']:.0f} % within +-3")  # fmt: skip
+    ax.legend(fontsize=7)
+    ax = axes[1]
+    floor = 0.5 / seq["mc_points"]  # an empty region drawn at half a sample point
+    for s in seq["recovery"]["waves"]["per_truth"]:
+        ok = s["truth_retained"][-1]
+        ax.plot(range(len(s["retained"])), np.maximum(s["retained"], floor), "o-", lw=0.8,
+                ms=3, alpha=0.6, color="tab:green" if ok else "tab:red")  # fmt: skip
+    ax.plot(range(len(seq["paper"]["retained"])), np.maximum(seq["paper"]["retained"], floor),
+            "s-", color="k", lw=2, label="the paper's tables")  # fmt: skip
+    ax.axhline(0.05, color="0.4", ls="--", label="5 % of the prior")
+    ax.plot([], [], "o-", color="tab:green", label="planted truth: retained")
+    ax.plot([], [], "o-", color="tab:red", label="planted truth: ruled out")
+    ax.set(xlabel="wave (0: the space-filling design)", yscale="log",
+           ylabel=f"share of {seq['mc_points']} uniform points retained",
+           title="history-matching waves")  # fmt: skip
+    ax.set_xticks(range(seq["waves"] + 1))
+    ax.legend(fontsize=7)
     return fig
 
 
@@ -201,4 +250,5 @@ def all_figures(record: dict, points: dict, out) -> list[str]:
     return [common.save_figure(out, f"{STEM}_{name}.png", fig) for name, fig in (
         ("power", power_curve(record)), ("residuals", residual_profile(record)),
         ("projections", projections(record, points)),
-        ("sensitivity", sensitivity_bars(record)), ("pareto", pareto_fronts(record)))]  # fmt: skip
+        ("sensitivity", sensitivity_bars(record)), ("fair", fair_comparison(record)),
+        ("waves", waves_figure(record)))]  # fmt: skip

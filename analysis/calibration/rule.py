@@ -69,7 +69,7 @@ LEVEL = 0.95
 DISTANCES = (0.1, 0.2, 0.3)
 #: Planted truths' "paper" runs use seeds TRUTH_SEED0 + t (never a rule seed: those are < 1000).
 TRUTH_SEED0 = 100_000
-#: The generator of the planted settings and directions.
+#: The generators of the planted settings and directions (truth t's: ``[PLANT_SEED, t]``).
 PLANT_SEED = 23
 #: The model discrepancy (relative) of the verdict, and the values it is also shown at.
 DELTA = 0.1
@@ -221,10 +221,13 @@ def planted(ev, space, n_truths: int, rule_seeds: Sequence[int],
     (``_calibration_stages.Space``), the rule's runs at ``rule_seeds``; at every discrepancy
     of :data:`DELTAS` with the default threshold, and with the earlier one (``rule="t"``) for
     comparison."""
-    rng = np.random.default_rng(seed)
     d = len(space.names)
-    truths = rng.random((n_truths, d))
-    away = [[_away(rng, u, r) for r in distances] for u in truths]
+    truths, away = [], []
+    for t in range(n_truths):  # truth t's own generator: more truths keep the first ones
+        rng = np.random.default_rng([seed, t])
+        truths.append(rng.random(d))
+        away.append([_away(rng, truths[-1], r) for r in distances])
+    truths = np.array(truths).reshape(n_truths, d)
     kept = np.array([[_discrete_kept(space, u, v) for v, _ in a] for u, a in
                      zip(truths, away, strict=True)]).reshape(n_truths, len(distances))
     tasks = []

@@ -26,6 +26,7 @@ from analysis.calibration import fit as fitmod
 from analysis.calibration import methods, prior
 from analysis.calibration.fair import Budget
 from analysis.calibration.store import Task, task_key
+from analysis.calibration.waves import Waves
 from wmr.engine.sweep import Factor
 
 __all__ = ["Level", "FULL", "MEDIUM", "QUICK", "LEVELS", "Space", "OUTPUTS", "numbers",
@@ -69,6 +70,8 @@ class Level:
     #: disjoint from ``seeds``, on which the candidates were selected (the design's ranking and
     #: the fit's objective), so their judgement is not the selection's own noise
     verdict_seeds: tuple[int, ...] = ()
+    #: the sequential design (history-matching waves) and its planted recovery
+    waves: Waves = Waves(waves=1, per_wave=3, mc=500, recovery_truths=2)
 
     def __post_init__(self):
         if len(self.verdict_seeds) != len(self.rule_seeds):
@@ -79,20 +82,24 @@ class Level:
                              f"seeds with the selection's {self.seeds}")
 
 
+#: The fair tuning of the medium and full levels: the regime study's full-level budget and
+#: training (so the two studies share one tuning), ten held-out seeds.
+_FAIR = Budget(per_setting=30, train_seeds=(100, 101), test_seeds=tuple(range(200, 210)))
 FULL = Level("full", (0, 1), morris_r=20, design_m=11, rule_seeds=tuple(range(10)),
              n_truths=100, verdict_top=20, cma_restarts=6, cma_popsize=12, cma_maxfevals=240,
-             fair=Budget(population=24, generations=15, seeds=(0, 1),
-                         test_seeds=tuple(range(100, 110)), front_points=6),
-             verdict_seeds=tuple(range(2, 12)))  # fmt: skip
+             fair=_FAIR,
+             verdict_seeds=tuple(range(2, 12)),
+             waves=Waves(waves=2, per_wave=32, mc=10_000, recovery_truths=30))  # fmt: skip
 MEDIUM = Level("medium", (0, 1), morris_r=8, design_m=7, rule_seeds=tuple(range(10)),
-               n_truths=20, verdict_top=5, cma_restarts=5, cma_popsize=8, cma_maxfevals=32,
-               fair=Budget(population=12, generations=5, seeds=(0,),
-                           test_seeds=tuple(range(100, 105)), front_points=3),
-               verdict_seeds=tuple(range(2, 12)))  # fmt: skip
+               n_truths=100, verdict_top=5, cma_restarts=5, cma_popsize=8, cma_maxfevals=32,
+               fair=_FAIR,
+               verdict_seeds=tuple(range(2, 12)),
+               waves=Waves(waves=2, per_wave=24, mc=4000, recovery_truths=20))  # fmt: skip
 QUICK = Level("quick", (0,), morris_r=2, design_m=3, rule_seeds=(0, 1, 2), n_truths=3,
               verdict_top=2, cma_restarts=2, cma_popsize=4, cma_maxfevals=4,
-              fair=Budget(population=6, generations=1, seeds=(0,), test_seeds=(100,),
-                          front_points=2, duration=21.0),
+              fair=Budget(per_setting=1, train_seeds=(100,), test_seeds=(200,),
+                          train_duration=3.0, training=1, duration=21.0,
+                          plants=("ideal", "slip")),
               factors={"duration": Factor("duration", levels=(21.0,)),
                        "dt": Factor("dt", levels=(0.05,))},
               base={"duration": 21.0, "dt": 0.05}, screen_fraction=0.3,

@@ -107,10 +107,11 @@ def _schema():
 
 def store_digest(extra: str = "") -> str:
     """What the runs of a task depend on: wmr's sources, the prior (settings to scenarios,
-    ``_calibration_prior.py``), the fair tuning's trajectories and gain ranges
-    (``_calibration_fair.py``), the shipped scenario files the prior and the held-out runs read
-    (``wmr/scenarios/<paper scenario>.toml``), :func:`task_jobs` and :func:`task_array` (a task's
-    runs and its result from their rows), :data:`METRICS`; and ``extra``.  The stages that only
+    ``prior.py``), the fair tuning's arms, held-out runs and tuning stage (``fair.py``,
+    ``analysis/tuning.py``, the regime study's ``design.py``), the shipped scenario files
+    the prior and the held-out runs read (``wmr/scenarios/<paper scenario>.toml``),
+    :func:`task_jobs` and :func:`task_array` (a task's runs and its result from their rows),
+    :data:`METRICS`; and ``extra``.  The stages that only
     summarise runs are not in it: changing them reuses the store."""
     import inspect
 
@@ -120,7 +121,8 @@ def store_digest(extra: str = "") -> str:
     from wmr.engine.store import digest_files
 
     here = Path(__file__).resolve().parent
-    files = [here / "prior.py", here / "fair.py"]
+    files = [here / "prior.py", here / "fair.py", here.parent / "tuning.py",
+             here.parent / "regimes" / "design.py"]
     files += [scn.builtin(name) for name in prior.SCENARIOS]
     code = "".join(inspect.getsource(f) for f in (task_jobs, task_array))
     return digest_files(files, "\0".join((source_digest(), code, repr((METRICS, COLUMNS)), extra)))
@@ -200,7 +202,8 @@ class Evaluator:
         self._engine = None
 
     # -- the engine, started on first need ------------------------------------------------------
-    def _eng(self):
+    def engine(self):
+        """The engine (started on first need; closed with the evaluator)."""
         from wmr.engine.executors import engine
 
         if self._engine is None:
@@ -232,7 +235,7 @@ class Evaluator:
             jobs = [j for t in todo.values()
                     for j in task_jobs(t, _missing(t, self.cache.get(t.key)))]  # fmt: skip
             try:
-                rows = execute(jobs, self._eng(), job_row, store=self.store, keep=True,
+                rows = execute(jobs, self.engine(), job_row, store=self.store, keep=True,
                                flush_seconds=self.flush_seconds, progress=self.progress,
                                desc=desc)  # fmt: skip
             finally:

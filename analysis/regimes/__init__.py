@@ -92,16 +92,16 @@ def _store(out: Path, level: str) -> Path:
     return Path(out) / ".regimes-store" if level == "quick" else studies_folder() / STEM / level
 
 
-def _tune(d: dict, eng, store: Path) -> dict:
-    """Every arm tuned on each pose source (``analysis.tuning``), resumable arm by arm."""
+def _tune(d: dict, eng, cache: Path) -> dict:
+    """Every arm tuned on each pose source (``analysis.tuning``; resumable, records in cache)."""
     training = design.training_documents(d["train_duration"], d["training"])
     budget = tuning.Budget(per_setting=d["per_setting"], seeds=tuple(d["train_seeds"]))
     return {pose: {c: tuning.tune_arm(tuning.arm(c, pose), training, budget, eng,
-                                      cache=store / "tuning") for c in d["arms"]}
+                                      cache=cache) for c in d["arms"]}
             for pose in POSES}  # fmt: skip
 
 
-def _known_pid(d: dict, eng, store: Path) -> dict:
+def _known_pid(d: dict, eng, cache: Path) -> dict:
     """The fixed PID tuned per mechanism on each pose source ("PID tuned on the test mechanism":
     what tuning for the robot's known defect buys a fixed PID at the same budget, no bound of
     anything): the training trajectories on that mechanism's plant, the same budget rule."""
@@ -112,8 +112,7 @@ def _known_pid(d: dict, eng, store: Path) -> dict:
             a = tuning.Arm(f"pid-known-{m}@{pose}", "pid", tuning.FREE["pid"],
                            {"estimator.pose_source": pose})  # fmt: skip
             train = design.training_on(m, d["train_duration"])
-            out.setdefault(pose, {})[m] = tuning.tune_arm(a, train, budget, eng,
-                                                          cache=store / "tuning")  # fmt: skip
+            out.setdefault(pose, {})[m] = tuning.tune_arm(a, train, budget, eng, cache=cache)
     return out
 
 
@@ -297,8 +296,9 @@ def compute(out, level: str, workers: int | None = None) -> dict:
     t0 = time.perf_counter()
     manifests = []
     with engine(workers) as eng:
-        tuned = _tune(d, eng, store)
-        known = _known_pid(d, eng, store) if d.get("known_pid") else None
+        cache = store / "tuning" if level == "quick" else tuning.shared_cache()
+        tuned = _tune(d, eng, cache)
+        known = _known_pid(d, eng, cache) if d.get("known_pid") else None
         t_tune = time.perf_counter() - t0
         done = _specs(d, tuned, store / "specs", known)
         for _, _, p in done:
