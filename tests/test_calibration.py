@@ -585,7 +585,8 @@ def test_emulator_learns_a_planted_function_with_honest_variances():
 
 def test_emulator_implausibility_closed_form():
     """One number off the target by 2 log units, the others exact: its implausibility is 2
-    over the root of its four variances (emulator, seed, rounding, discrepancy)."""
+    over the root of its four variances (emulator, seed, rounding, discrepancy); 0 when that
+    number's target diverged."""
     from analysis.calibration import rule
     from analysis.calibration.waves import implausibility
 
@@ -596,6 +597,8 @@ def test_emulator_implausibility_closed_form():
     got = implausibility(mean, var, z, v_seed)
     want = 2.0 / math.sqrt(0.05 + (prior.ROUNDING[7] / z[7]) ** 2 / 3 + math.log1p(rule.DELTA) ** 2)
     assert got[0] == 0.0 and got[1] == pytest.approx(want, rel=1e-12)
+    z[7] = prior.DIVERGED_RMSE  # a diverged target number: not judged by the emulator
+    assert implausibility(mean, var, z, v_seed)[1] == 0.0
 
 
 @pytest.fixture(scope="module")

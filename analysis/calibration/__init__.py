@@ -449,8 +449,10 @@ def _check_sequential(seq: dict) -> None:
     e = np.abs(np.asarray(val["errors"]))
     assert val["values"] == e.size
     assert math.isclose(val["within_3"], float(np.mean(e <= 3)), abs_tol=1e-3), val["within_3"]
-    assert val["valid"] == (val["within_3"] >= waves.VALID_WITHIN_3)
     rec = seq["recovery"]
+    assert val["errors_valid"] == (val["within_3"] >= waves.VALID_WITHIN_3)
+    assert val["recovers_wave0"] == (rec["wave0"]["recovered"]["p"] >= waves.RECOVER)
+    assert val["valid"] == (val["errors_valid"] and val["recovers_wave0"])
     for s in [seq["paper"], *rec["waves"]["per_truth"]]:
         v = s["retained"]
         assert len(v) == len(s["runs"]) <= seq["waves"] + 1, s
