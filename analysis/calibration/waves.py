@@ -52,6 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from analysis.calibration import prior, rule, stages
+from analysis.calibration.fit import _values as fit_values
 
 __all__ = ["Waves", "Emulator", "validate", "history_match", "recovery", "study", "MC_SEED",
            "VALID_WITHIN_3", "RECOVER", "DIVERGED_TARGET"]
@@ -310,8 +311,8 @@ def study(ev, level, space, des: dict, truths_u: Sequence, cfg: Waves) -> dict:
     mc = np.random.default_rng(MC_SEED).random((cfg.mc, len(space.names)))
     paper = history_match(ev, space, em0, v_seed, prior.PAPER, mc, cfg, seeds, tag=0)
     if "least_implausible_u" in paper:
-        paper["least_implausible"] = {n: _plain(v) for n, v in
-                                      space.values(paper["least_implausible_u"]).items()
+        paper["least_implausible"] = {n: v for n, v in
+                                      fit_values(space, paper["least_implausible_u"]).items()
                                       if n in space.names}  # fmt: skip
     rec = recovery(ev, space, em0, v_seed, targets, truths, mc, cfg, seeds)
     val["recovers_wave0"] = rec["wave0"]["recovered"]["p"] >= RECOVER
@@ -335,6 +336,3 @@ def stages_diverged(des: dict) -> np.ndarray:
     """Whether each seed's number diverged at each design point (points, seeds, 36)."""
     return np.stack([stages.diverged(a) for a in des["results"]])
 
-
-def _plain(v):
-    return v.item() if hasattr(v, "item") else v
