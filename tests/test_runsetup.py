@@ -107,3 +107,31 @@ def test_a_run_inside_a_python_controller_leaves_the_outer_run_alone(monkeypatch
     nested = simulate(sc, "bsc-py-nested", 4)
     assert_array_equal(nested.q, plain.q)
     assert_array_equal(plain.q, simulate(sc, "backstepping", 4).q)
+
+
+@pytest.mark.parametrize("seed", [0, 11])
+def test_compiled_noise_draws_are_numpys(seed):
+    """``draw_noise`` (numba's ``Generator.standard_normal``) gives numpy's draws times the
+    deviations, bit for bit, over enough draws to pass through the ziggurat's tail many times
+    (P(|z| > 3.65) ~ 3e-4 per draw), and leaves the generator in numpy's state."""
+    std = np.array([0.01, 0.02, 0.005])
+    a = np.random.default_rng(seed)
+    b = np.random.default_rng(seed)
+    out = np.empty((100_000, 3))
+    for _ in range(3):  # the stream continues across calls, as across a run's chunks
+        runsetup.draw_noise(a, std, out)
+        assert_array_equal(out, b.standard_normal(out.shape) * std)
+    assert a.bit_generator.state == b.bit_generator.state
+
+
+def test_a_long_run_draws_its_noise_as_a_short_one():
+    """A run whose chunks are drawn by the compiled ``draw_noise`` (``>= JIT_NOISE_ROWS`` steps)
+    sees the noise numpy would draw: its first steps equal a run short enough for numpy's draw
+    (same seed, same measured poses)."""
+    sc = scn.load(scn.builtin("lemniscate"))
+    n_short = runsetup.JIT_NOISE_ROWS // 2
+    assert sc.n_steps >= runsetup.JIT_NOISE_ROWS
+    long = simulate(sc, "backstepping", seed=3)
+    short = simulate(dataclasses.replace(sc, duration=n_short * sc.dt), "backstepping", seed=3)
+    assert_array_equal(long.z[:n_short], short.z)
+    assert_array_equal(long.q[: n_short + 1], short.q)

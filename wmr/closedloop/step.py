@@ -82,6 +82,7 @@ __all__ = [
     "PLANT_PYTHON",
     "kernel",
     "python_step",
+    "step_scratch",
     "plant_step",
     "plant_half",
     "law_digest",
@@ -155,6 +156,23 @@ def estimate(k, z, q_hat, Pq, use_ekf, Rp, work):
     return pose_update(q_hat, Pq, z, Rp, work)
 
 
+@njit
+def step_scratch(n_ref):
+    """The buffers of one caller of the step (``scratch`` of :func:`_advance_template`): the
+    command, the applied command, the measurement, the pose filter's scratch and a reference row
+    of ``n_ref`` entries."""
+    return np.zeros(2), np.zeros(2), np.zeros(3), pose_work(), np.zeros(n_ref)
+
+
+@njit(inline="always")
+def row_into(table, i, r):
+    """Copy the row ``table[i]`` into ``r`` (the loop hands the laws a buffer, not a view of the
+    row: a view is made with its parent's reference count incremented, and released, every
+    step)."""
+    for j in range(r.shape[0]):
+        r[j] = table[i, j]
+
+
 @njit(inline="always")
 def saturate(u, v_max, w_max):
     """Phase 2 (after the law): clip ``u = (v, w)`` to ``|v| <= v_max``, ``|w| <= w_max``;
@@ -205,9 +223,10 @@ def _advance_template(
     nor the true plant) and :func:`score`.  ``ref`` holds the reference rows ``k0 .. k1``
     (``ref[i]`` at ``t_k``, ``i = k - k0``; the last row is where the last pose is scored) and
     ``noise`` the measurement noise of the steps; ``*_log`` are the arrays of :class:`Logs`
-    (written only by a copy with ``KEEP``).  ``scratch = (u, ua, z, work)``: the command, the
-    applied command, the measurement and the pose filter's scratch
-    (``wmr.estimation.ekf.pose_work``), made here once per call when not given (a caller that steps
+    (written only by a copy with ``KEEP``).  ``scratch = (u, ua, z, work, r)``: the command, the
+    applied command, the measurement, the pose filter's scratch
+    (``wmr.estimation.ekf.pose_work``) and the reference row the law and the score read (a copy of
+    ``ref[i]``, then of ``ref[i + 1]``), made here once per call when not given (a caller that steps
     one ``k`` at a time, the python-control comparator, hands in its own).
 
     This function is never called as written: :func:`_bind` makes copies of it whose globals fix
@@ -226,13 +245,19 @@ def _advance_template(
     branching ones (:func:`estimate`, the pose filter) are called from the loop's body.
     """
     if scratch is None:
-        scratch = (np.zeros(2), np.zeros(2), np.zeros(3), pose_work())
-    u, ua, z, work = scratch
+        scratch = step_scratch(ref.shape[1])
+    u, ua, z, work, r = scratch
     plant_arrays = (plant_table, plant_at, plant_ints, plant_vel, plant_buffer)
+    row_into(ref, 0, r)
     for k in range(k0, k1):
         i = k - k0
-        measure(q, noise, i, z)  # sense, in two calls (see below)
-        nis = estimate(k, z, q_hat, Pq, use_ekf, Rp, work)
+        measure(q, noise, i, z)  # sense, in two parts (see below)
+        if use_ekf:
+            nis = estimate(k, z, q_hat, Pq, use_ekf, Rp, work)
+        else:  # the raw measurement: no call (a call passes its arrays with their counts)
+            for j in range(3):
+                q_hat[j] = z[j]
+            nis = math.nan
         if PROBE:  # noqa: F821 - the globals of this template are bound per copy by _bind()
             if probe.after_estimate is not None:  # noqa: F821
                 probe.after_estimate(k, q, q_hat, Pq, nis)  # noqa: F821
@@ -242,7 +267,7 @@ def _advance_template(
             p.truth[0] = q[0]
             p.truth[1] = q[1]
             p.truth[2] = q[2]
-        law(p, s, theta, P, q_hat, ref[i], dt, u)  # noqa: F821
+        law(p, s, theta, P, q_hat, r, dt, u)  # noqa: F821 - r: the row ref[i]
         finite = saturate(u, v_max, w_max)
         if PROBE:  # noqa: F821
             if probe.after_law is not None:  # noqa: F821
@@ -261,7 +286,8 @@ def _advance_template(
             pose_predict(q_hat, Pq, u, dt, integrator, Qp, work)  # or true plant
         if KEEP:  # noqa: F821
             q_log[k + 1, :] = q
-        cause = score(k, dt, q, ref[i + 1], u, acc, t_tail, bound)
+        row_into(ref, i + 1, r)  # the row ref[i + 1]: scored now, the next step's reference
+        cause = score(k, dt, q, r, u, acc, t_tail, bound)
         if cause != 0:
             status[0] = k + 1
             status[1] = cause

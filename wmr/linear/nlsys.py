@@ -41,7 +41,6 @@ import numpy as np
 
 from wmr.closedloop import metrics
 from wmr.closedloop import step as loop
-from wmr.estimation.ekf import pose_work
 from wmr.scenario import Scenario
 
 __all__ = ["INPUTS", "OUTPUTS", "Layout", "ClosedLoop", "closed_loop", "inputs", "update_function"]
@@ -196,7 +195,7 @@ def update_function(run: loop.Prepared, layout: Layout):
     advance = loop.python_step(run)
     dt, p, integrator = sc.dt, run.p, run.integrator
     v_max, w_max, bound = sc.limits.v_max, sc.limits.w_max, math.inf
-    scratch = (np.zeros(2), np.zeros(2), np.zeros(3), pose_work())  # as in the kernel
+    scratch = loop.step_scratch(5)  # the kernel's buffers
     acc, status, none = np.zeros(metrics.N_ACC), np.zeros(2, dtype=np.int64), np.zeros((0, 0))
 
     def update(t, x, u, params=None):
