@@ -39,8 +39,16 @@ def _true_robot():
     return dataclasses.replace(sc, plant=spec)
 
 
+def _rk4_filtered():
+    """The RK4 step with the pose filter: its Jacobians allocate inside the loop, so a buffer of
+    the kernel freed while still in use (a borrowed view outliving its owner, wmr._borrow) would
+    be overwritten mid-run (it was: the compiled pose estimate drifted 1e-4 from the Python
+    driver's at step 1)."""
+    return dataclasses.replace(_filtered_perturbed(), integrator="rk4")
+
+
 SCENARIOS = {"lemniscate": short_lemniscate, "perturbed-filtered": _filtered_perturbed,
-             "true-robot": _true_robot}
+             "true-robot": _true_robot, "rk4-filtered": _rk4_filtered}
 
 
 def assert_same_run(a, b):

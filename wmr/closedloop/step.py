@@ -50,6 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wmr._borrow import borrowed
 from wmr._jit import njit
 from wmr.closedloop import metrics
 from wmr.closedloop.runsetup import (
@@ -90,6 +91,8 @@ __all__ = [
     "run",
 ]
 
+#: Entries of a reference row: ``(x_r, y_r, theta_r, v_r, w_r)`` (``wmr.model.references``).
+REF_COLUMNS = 5
 #: Why a run stopped: the codes the phases return.
 CAUSES = {0: None, 1: "non-finite value", 2: "position error exceeded divergence_bound"}
 
@@ -244,10 +247,18 @@ def _advance_template(
     backstepping kernel's time).  For the same reason the inlined phases are branch-free and the
     branching ones (:func:`estimate`, the pose filter) are called from the loop's body.
     """
+    # every array of the loop borrowed for the call (wmr._borrow: no reference counts per step);
+    # the caller owns them all for the call's duration -- the scratch too when it hands it in
+    # (made here, it stays owned: borrowing it would let numba free it under its views)
+    p, s, theta, P, q, q_hat, ref, noise = borrowed((p, s, theta, P, q, q_hat, ref, noise))
+    Pq, Qp, Rp, disturbance, acc, status = borrowed((Pq, Qp, Rp, disturbance, acc, status))
+    plant_arrays = borrowed((plant_table, plant_at, plant_ints, plant_vel, plant_buffer))
+    q_log, qhat_log, u_log, s_log, vel_log, z_log = borrowed(
+        (q_log, qhat_log, u_log, s_log, vel_log, z_log))
     if scratch is None:
-        scratch = step_scratch(ref.shape[1])
-    u, ua, z, work, r = scratch
-    plant_arrays = (plant_table, plant_at, plant_ints, plant_vel, plant_buffer)
+        u, ua, z, work, r = step_scratch(ref.shape[1])
+    else:
+        u, ua, z, work, r = borrowed(scratch)
     row_into(ref, 0, r)
     for k in range(k0, k1):
         i = k - k0
@@ -516,6 +527,7 @@ def run(run: Prepared, logs: Logs | None, probe=None, driver: str | None = None)
         logs = _NO_LOGS
     # the thread's noise buffer only for the kernel: Python code run by the Python driver (a
     # controller that simulates inside its step) could start another run on this thread
+    scratch = step_scratch(REF_COLUMNS)  # owned here for the whole run (see the template)
     for k0, k1, ref, noise in run.chunks(reuse=driver == "compiled"):
         advance(
             run.p, run.s, run.theta, run.P, k0, k1, sc.dt, run.integrator, run.q, run.q_hat,
@@ -523,7 +535,7 @@ def run(run: Prepared, logs: Logs | None, probe=None, driver: str | None = None)
             sc.limits.v_max, sc.limits.w_max, sc.divergence_bound,
             run.plant_table, run.plant_at, run.plant_ints, run.plant_vel, run.plant_buffer,
             run.acc, metrics.TRANSIENT, run.status, logs.q, logs.q_hat, logs.u, logs.state,
-            logs.vel, logs.z,
+            logs.vel, logs.z, scratch,
         )  # fmt: skip
         if keep:
             logs.ref[k0 + 1 : k1 + 1] = ref[1:]

@@ -195,7 +195,7 @@ def update_function(run: loop.Prepared, layout: Layout):
     advance = loop.python_step(run)
     dt, p, integrator = sc.dt, run.p, run.integrator
     v_max, w_max, bound = sc.limits.v_max, sc.limits.w_max, math.inf
-    scratch = loop.step_scratch(5)  # the kernel's buffers
+    scratch = loop.step_scratch(loop.REF_COLUMNS)  # the kernel's buffers
     acc, status, none = np.zeros(metrics.N_ACC), np.zeros(2, dtype=np.int64), np.zeros((0, 0))
 
     def update(t, x, u, params=None):
