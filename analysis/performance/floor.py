@@ -15,6 +15,7 @@ import numpy as np
 
 from analysis.performance.bench import clocks, per_step
 from wmr import controllers
+from wmr._borrow import borrowed
 from wmr._jit import njit
 from wmr.controllers import iapid_nn_dekf
 from wmr.estimation import nn
@@ -126,7 +127,9 @@ def floor_update(theta, P, H, innovation, q_diag, R, work, specialise=True):
 
 @njit
 def floor_loop(steps, theta, P, H, innovation, q_diag, R, work, specialise=True):
-    """``steps`` calls of :func:`floor_update` inside one jitted loop (no Python call overhead)."""
+    """``steps`` calls of :func:`floor_update` inside one jitted loop (no Python call overhead),
+    the arrays borrowed as the closed loop borrows them (``wmr._borrow``: no reference counts)."""
+    theta, P, H, innovation, q_diag, R, work = borrowed((theta, P, H, innovation, q_diag, R, work))
     for _ in range(steps):
         floor_update(theta, P, H, innovation, q_diag, R, work, specialise)
 
@@ -134,7 +137,8 @@ def floor_loop(steps, theta, P, H, innovation, q_diag, R, work, specialise=True)
 @njit
 def library_weight_update_loop(steps, theta, P, H, innovation, q_diag, R, work):
     """``steps`` calls of the library's ``wmr.estimation.ekf.weight_update`` inside one jitted
-    loop."""
+    loop, the arrays borrowed as in :func:`floor_loop`."""
+    theta, P, H, innovation, q_diag, R, work = borrowed((theta, P, H, innovation, q_diag, R, work))
     for _ in range(steps):
         weight_update(theta, P, H, innovation, q_diag, R, work)
 

@@ -2,14 +2,14 @@
 beside the whole kernel, on the inputs a real run gave it.
 
 For a controller on a scenario one run is kept (poses, estimates, commands, reference; its noise
-drawn again from the same stream), then each phase runs over those inputs, step after step, inside
-a jitted loop of its own -- the phases themselves, as the kernel calls them (the law inlined as in
-the kernel), so the figure is what the phase costs in the loop: ``sense`` (measurement and
-estimate: a copy, or the pose filter's update), ``law`` (the controller, saturation included),
-``plant`` (delay, disturbance and the true robot's step), ``predict`` (the pose filter's
-prediction, for the controllers that use it) and ``score``.  ``kernel`` is the whole compiled
-step on the same run; ``loop`` what the kernel costs beyond the sum of its phases.  Nothing of the
-step is written here: the timing loops call the phases.
+drawn again from the same stream), then each phase runs over those inputs, step after step, inside a
+jitted loop of its own -- the phases themselves, as the kernel calls them (the law inlined as in the
+kernel, the arrays borrowed as the kernel borrows them: ``wmr._borrow``), so the figure is what the
+phase costs in the loop: ``sense`` (measurement and estimate: a copy, or the pose filter's update),
+``law`` (the controller, saturation included), ``plant`` (delay, disturbance and the true robot's
+step), ``predict`` (the pose filter's prediction, for the controllers that use it) and ``score``.
+``kernel`` is the whole compiled step on the same run; ``loop`` what the kernel costs beyond the sum
+of its phases. Nothing of the step is written here: the timing loops call the phases.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import numba
 import numpy as np
 
 from analysis.performance.bench import clocks, per_step
+from wmr._borrow import borrowed
 from wmr.closedloop import metrics
 from wmr.closedloop import step as loop
 from wmr.closedloop.sim import simulate
@@ -31,6 +32,7 @@ PHASES = ("sense", "law", "plant", "predict", "score")
 
 @numba.njit
 def _sense(q, noise, q_hat, Pq, use_ekf, Rp, z, work):
+    q, noise, q_hat, Pq, Rp, z, work = borrowed((q, noise, q_hat, Pq, Rp, z, work))
     for k in range(noise.shape[0]):
         loop.measure(q[k], noise, k, z)
         loop.estimate(k, z, q_hat, Pq, use_ekf, Rp, work)
@@ -38,12 +40,14 @@ def _sense(q, noise, q_hat, Pq, use_ekf, Rp, z, work):
 
 @numba.njit
 def _predict(q_hat, Pq, u, dt, integrator, Qp, work):
+    q_hat, Pq, u, Qp, work = borrowed((q_hat, Pq, u, Qp, work))
     for k in range(u.shape[0]):
         pose_predict(q_hat, Pq, u[k], dt, integrator, Qp, work)
 
 
 @numba.njit
 def _score(q, ref, u, dt, acc, t_tail, bound):
+    q, ref, u, acc = borrowed((q, ref, u, acc))
     for k in range(u.shape[0]):
         loop.score(k, dt, q[k + 1], ref[k + 1], u[k], acc, t_tail, bound)
 
@@ -53,6 +57,7 @@ def _law_loop(law):
 
     @numba.njit
     def run(p, s, theta, P, q_hat, ref, dt, u, v_max, w_max):
+        p, s, theta, P, q_hat, ref, u = borrowed((p, s, theta, P, q_hat, ref, u))
         for k in range(q_hat.shape[0]):
             law(p, s, theta, P, q_hat[k], ref[k], dt, u)
             loop.saturate(u, v_max, w_max)
@@ -63,6 +68,8 @@ def _law_loop(law):
 def _plant_loop(half):
     @numba.njit
     def run(u, ua, q, dt, integrator, disturbance, plant_arrays, vel_log):
+        u, ua, q, disturbance, plant_arrays, vel_log = borrowed(
+            (u, ua, q, disturbance, plant_arrays, vel_log))
         for k in range(u.shape[0]):
             half(k, dt, integrator, u[k], ua, q, disturbance, plant_arrays, vel_log)
 

@@ -52,7 +52,7 @@ CHUNK = 8192
 #: From this many steps on, a chunk's noise is drawn by :func:`draw_noise` (compiled, ~4x faster
 #: per draw than numpy's ``standard_normal``, but ~10 us to hand it the generator); shorter chunks
 #: by numpy.  The two give the same draws, bit for bit (``tests/test_runsetup.py``).
-JIT_NOISE_ROWS = 1024
+JIT_NOISE_ROWS = 512
 #: The longest reference table kept for a scenario (rows: one chunk's, 328 kB): a longer run
 #: samples its reference chunk by chunk instead, so its memory does not grow with its length.
 TABLE_ROWS = CHUNK + 1
