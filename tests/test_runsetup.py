@@ -135,3 +135,47 @@ def test_a_long_run_draws_its_noise_as_a_short_one():
     short = simulate(dataclasses.replace(sc, duration=n_short * sc.dt), "backstepping", seed=3)
     assert_array_equal(long.z[:n_short], short.z)
     assert_array_equal(long.q[: n_short + 1], short.q)
+
+
+#: Seeds of one and two 32-bit words, the edges of each, and numpy integers.
+FAST_SEEDS = [0, 1, 5, 2**31, 2**32 - 1, 2**32, 2**40 + 7, 2**63, 2**64 - 1, np.int64(12)]
+
+
+def test_compiled_spawned_states_are_numpys():
+    """``seeding.spawned_states`` gives ``SeedSequence(seed, spawn_key=(i,)).generate_state(4,
+    uint64)`` for i = 0, 1, over the edge seeds and 300 random ones of up to 64 bits."""
+    from wmr.closedloop import seeding
+
+    rng = np.random.default_rng(2)
+    seeds = [int(s) for s in FAST_SEEDS] + [int(x) for x in rng.integers(0, 2**63, 200)]
+    seeds += [int(x) for x in rng.integers(0, 2**32, 100)]
+    words = np.empty((2, 8), dtype=np.int64)
+    for seed in seeds:
+        seeding.spawned_states(seed & 0xFFFFFFFF, seed >> 32, words)
+        got = words.astype("<u4").view("<u8").astype(np.uint64)
+        for i in range(2):
+            want = np.random.SeedSequence(seed, spawn_key=(i,)).generate_state(4, np.uint64)
+            assert_array_equal(got[i], want, err_msg=f"seed {seed}, key {i}")
+
+
+@pytest.mark.parametrize("seed", [*FAST_SEEDS, 2**64, 2**70 + 1, [3, 1, 4],
+                                  np.random.SeedSequence(9)])  # fmt: skip
+def test_a_runs_generators_are_numpys_children(seed):
+    """``seeding.generators`` (the compiled path for seeds in [0, 2**64), numpy's otherwise)
+    gives the generators ``default_rng`` makes of the seed's two spawned children: same state,
+    same draws; without ``draws`` the noise stream alone."""
+    from wmr.closedloop import seeding
+
+    children = (seed.spawn(2) if isinstance(seed, np.random.SeedSequence)
+                else np.random.SeedSequence(seed).spawn(2))  # fmt: skip
+    if isinstance(seed, np.random.SeedSequence):  # spawning advances the parent: a fresh one
+        seed = np.random.SeedSequence(9)
+    noise, init = seeding.generators(seed)
+    for got, child in zip((noise, init), children, strict=True):
+        want = np.random.default_rng(child)
+        assert got.bit_generator.state == want.bit_generator.state
+        assert_array_equal(got.standard_normal(20), want.standard_normal(20))
+    if not isinstance(seed, np.random.SeedSequence):
+        alone, none = seeding.generators(seed, draws=False)
+        assert none is None
+        assert alone.bit_generator.state == np.random.default_rng(children[0]).bit_generator.state

@@ -117,7 +117,8 @@ def notes(rec: dict) -> list[str]:
         "Ratios are judged on this thread's CPU time (time.thread_time), which leaves out the "
         "time other processes hold the core; wall-clock figures are beside them. "
         "ratios.iapid_over_floor is the median over rounds of the iapid-nn-dekf step over the "
-        "median of the 3 floor timings taken right after it.",
+        "median of the 3 floor timings taken right before it (each round: the floor, then the "
+        "controllers, iapid-nn-dekf first).",
         "weight_update_us_per_step: the library's wmr.estimation.ekf.weight_update (Joseph form, "
         "O(n^2 m)) timed the same way, the part of the step that the floor stands for.",
         "python_control_us_per_step: the iapid-nn-dekf closed loop as a python-control "

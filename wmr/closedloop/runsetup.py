@@ -27,6 +27,7 @@ from wmr import controllers
 from wmr._jit import njit
 from wmr._shared import SHARED
 from wmr.closedloop import metrics
+from wmr.closedloop.seeding import generators, seed_sequences
 from wmr.model.kinematics import integrator_code
 from wmr.model.references import ReferenceSampler
 from wmr.robots import plant
@@ -113,23 +114,6 @@ def _fixed(sc: Scenario, python_robot: bool) -> _Fixed:
 
     parts = (sc.estimator, sc.noise, sc.disturbances, sc.plant)
     return SHARED.get("fixed", parts, (sc.dt, sc.integrator, python_robot), build)
-
-
-def seed_sequences(seed: int | np.random.SeedSequence):
-    """The run's two independent streams: measurement noise and controller initialisation.
-
-    The noise stream depends on the seed only, so every controller of a comparison sees the same
-    noise draws (common random numbers).  For a seed given as a number these are the children
-    ``SeedSequence(seed).spawn(2)`` would give, made directly (the parent is not needed).
-    """
-    if isinstance(seed, np.random.SeedSequence):
-        return seed.spawn(2)
-    return [np.random.SeedSequence(seed, spawn_key=(i,)) for i in range(2)]
-
-
-def _generator(ss: np.random.SeedSequence) -> np.random.Generator:
-    """``np.random.default_rng(ss)``, which is this (a PCG64 generator), without its checks."""
-    return np.random.Generator(np.random.PCG64(ss))
 
 
 @njit
@@ -284,12 +268,8 @@ def prepare(scenario: Scenario, controller: str, seed: int | None = None, settin
     seed = scenario.seed if seed is None else seed
     # a pack that says it draws nothing (``pack.uses_rng = False``) is handed no generator (its
     # stream is not even made: the noise stream is the first child either way)
-    draws = getattr(ctrl.pack, "uses_rng", True)
-    if draws or isinstance(seed, np.random.SeedSequence):
-        noise_ss, init_ss = seed_sequences(seed)
-    else:
-        noise_ss, init_ss = np.random.SeedSequence(seed, spawn_key=(0,)), None
-    p, s, theta, P = ctrl.pack(settings, scenario, _generator(init_ss) if draws else None)
+    rng_noise, rng_init = generators(seed, getattr(ctrl.pack, "uses_rng", True))
+    p, s, theta, P = ctrl.pack(settings, scenario, rng_init)
     make = robot if robot is not None else pyplant.factory(scenario.plant)
     fx = _fixed(scenario, make is not None)
     table, at, ints, vel, buffer = fx.plant
@@ -308,6 +288,6 @@ def prepare(scenario: Scenario, controller: str, seed: int | None = None, settin
         disturbance=fx.disturbance, integrator=fx.integrator,
         plant_table=table, plant_at=at, plant_ints=ints.copy(), plant_vel=vel.copy(),
         plant_buffer=buffer.copy(), acc=np.zeros(metrics.N_ACC),
-        status=np.array([-1, 0], dtype=np.int64), rng_noise=_generator(noise_ss),
+        status=np.array([-1, 0], dtype=np.int64), rng_noise=rng_noise,
         plant_kind=kind, pyplant=robot, reference=reference_table(scenario), quiet=fx.quiet,
     )  # fmt: skip

@@ -44,6 +44,7 @@ from __future__ import annotations
 import hashlib
 import marshal
 import math
+import threading
 import types
 from dataclasses import dataclass
 from pathlib import Path
@@ -500,6 +501,17 @@ def _start(run: Prepared, logs: Logs | None) -> None:
         logs.ref[0] = r0
 
 
+_LOCAL = threading.local()
+
+
+def _thread_scratch() -> tuple:
+    """This thread's kernel buffers (:func:`step_scratch`), made once."""
+    scratch = getattr(_LOCAL, "scratch", None)
+    if scratch is None:
+        scratch = _LOCAL.scratch = step_scratch(REF_COLUMNS)
+    return scratch
+
+
 def run(run: Prepared, logs: Logs | None, probe=None, driver: str | None = None) -> None:
     """Run the whole loop of ``run`` (logging into ``logs`` if given).
 
@@ -527,8 +539,14 @@ def run(run: Prepared, logs: Logs | None, probe=None, driver: str | None = None)
         logs = _NO_LOGS
     # the thread's noise buffer only for the kernel: Python code run by the Python driver (a
     # controller that simulates inside its step) could start another run on this thread
-    scratch = step_scratch(REF_COLUMNS)  # owned here for the whole run (see the template)
+    # the kernel's buffers: this thread's, zeroed for each call as if made afresh (the kernel
+    # borrows them, so they are owned here, see the template); the Python driver's are made by
+    # each call (Python code run by it could start another run on this thread)
+    scratch = _thread_scratch() if driver == "compiled" else None
     for k0, k1, ref, noise in run.chunks(reuse=driver == "compiled"):
+        if scratch is not None:
+            for buf in scratch:
+                buf.fill(0.0)
         advance(
             run.p, run.s, run.theta, run.P, k0, k1, sc.dt, run.integrator, run.q, run.q_hat,
             ref, noise, run.use_ekf, run.Pq, run.Qp, run.Rp, run.disturbance,
