@@ -18,6 +18,7 @@ process and here (the kernels' warm-up; files a plugin needs).
 
 from __future__ import annotations
 
+import gc
 import logging
 import os
 from collections.abc import Callable, Iterator, Sequence
@@ -55,8 +56,17 @@ LOCAL_CLUSTER_CONFIG = {
 
 
 def run_batch(fn: Callable, items: Sequence) -> list:
-    """``[fn(item) for item in items]``: the unit of work sent to a worker."""
-    return [fn(item) for item in items]
+    """``[fn(item) for item in items]``: the unit of work sent to a worker, with Python's cyclic
+    garbage collector paused for the batch (the runs' objects are freed by their reference
+    counts; a batch's results, kept until it returns, would otherwise trigger full collections
+    over every object of the worker, a tenth of its time in a sweep of short runs)."""
+    paused = gc.isenabled()
+    gc.disable()
+    try:
+        return [fn(item) for item in items]
+    finally:
+        if paused:
+            gc.enable()
 
 
 def default_workers() -> int:
