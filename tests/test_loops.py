@@ -243,7 +243,7 @@ def _true_error_step(op, e, ua, u):
     q_r = np.zeros(3)
     th = q_r[2] - e[2]
     q = np.array([*(q_r[:2] - rotation(th).T[:2, :2] @ e[:2]), th])
-    row = np.array(scn.Plant(actuator_tau=op.actuator_tau).row())
+    row = plant.table_row(scn.Plant(actuator_tau=op.actuator_tau).row(), plant.KINEMATIC, op.dt, 1)
     vel = np.array(ua, dtype=float)
     plant.lagged_step(row, plant.KINEMATIC, q, vel, u[0], u[1], op.dt, 1)
     return tracking_error(q, step(q_r, op.u_r, op.dt, EXACT)), vel

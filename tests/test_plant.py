@@ -182,7 +182,8 @@ def test_lagged_step_is_of_order_six():
     errors = []
     for h in (0.04, 0.02, 0.01):
         q, vel = q0.copy(), vel0.copy()
-        plant.lagged_step(np.array(spec.row()), plant.KINEMATIC, q, vel, *a, h, 1)
+        plant.lagged_step(plant.table_row(spec.row(), plant.KINEMATIC, h, 1), plant.KINEMATIC, q,
+                          vel, *a, h, 1)  # fmt: skip
         errors.append(np.max(np.abs(np.concatenate((q, vel)) - _reference_step(spec, q0, vel0,
                                                                                 a, h))))
     assert errors[0] / errors[1] > 64.0 and errors[1] / errors[2] > 64.0, errors
@@ -323,7 +324,7 @@ def test_every_key_is_declared_with_its_metadata():
     for cls in (scn.Plant, *(m.table for m in plantspec.MODELS.values() if m.table)):
         keys = {f.name for f in dataclasses.fields(cls) if f.metadata.get("toml", True)}
         assert keys == {f.name for f in plantspec.spec_fields(cls)}, cls
-    assert plant.PARAMS == (*plantspec.COLUMNS, "substeps")
+    assert plant.PARAMS == (*plantspec.COLUMNS, "substeps", *plant.DECAYS)
 
 
 def _null_change(model: str, other_than: str | None) -> tuple:

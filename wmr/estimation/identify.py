@@ -67,7 +67,7 @@ from wmr.estimation.robot_log import (
     LogError,
     read_log,
 )
-from wmr.robots import plant
+from wmr.robots import plant, plantspec
 from wmr.scenario import Plant
 
 __all__ = ["LogError", "PARAMETERS", "NOMINAL", "REQUIRED", "OPTIONAL", "MIN_ROWS",
@@ -108,7 +108,6 @@ MAX_FIT_SUBSTEPS = 8
 FD_STEP = 1e-6
 _COLS = [plant.PARAMS.index(p) for p in PARAMETERS]
 _TAU = PARAMETERS.index("actuator_tau")
-_N_SUB = plant.PARAMS.index("substeps")
 
 
 def structural(log: Log) -> dict[str, str]:
@@ -161,11 +160,12 @@ def _table(values, dt: float, max_substeps: int | None = None) -> np.ndarray:
     :data:`PARAMETERS` (the other columns at ``wmr.scenario.Plant``'s defaults, substeps by
     ``wmr.robots.plant.substeps``,
     capped at ``max_substeps``)."""
-    row = np.array([*Plant().row(), 0.0], dtype=float)  # the columns, then substeps (plant.arrays)
+    row = np.zeros(plant.N_PARAMS)  # the columns, then the integration's (plant.finish_row)
+    row[: len(plantspec.COLUMNS)] = Plant().row()
     row[_COLS] = values
     n = plant.substeps(row, plant.KINEMATIC, dt)
-    row[_N_SUB] = n if max_substeps is None else min(n, max_substeps)
-    return row[None, :]
+    n = n if max_substeps is None else min(n, max_substeps)
+    return plant.table_row(row[: len(plantspec.COLUMNS)], plant.KINEMATIC, dt, n)[None, :]
 
 
 def replay(log: Log, values, delay: int, starts, q0, max_substeps: int | None = None):

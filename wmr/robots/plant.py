@@ -72,6 +72,9 @@ __all__ = [
     "arrays",
     "crab_arc",
     "first_order",
+    "first_order_decayed",
+    "finish_row",
+    "table_row",
     "channels",
     "lagged_step",
 ]
@@ -80,13 +83,19 @@ KINEMATIC, LAGGED_VELOCITY = 0, 1
 #: The compiled models: ``[plant] model`` -> the code in ``ints[I_MODEL]``.
 MODEL_CODES = {"kinematic": KINEMATIC, "lagged-velocity": LAGGED_VELOCITY}
 #: Columns of a row of the plant's parameter table (one row per segment between changes): the
-#: specification's (``wmr.robots.plantspec.COLUMNS``), then the substeps of the lagged integration.
-PARAMS = (*COLUMNS, "substeps")
+#: specification's (``wmr.robots.plantspec.COLUMNS``), then the substeps of the lagged integration
+#: and the eight decays it reads, ``expm1(-t / tau)`` of each channel at the three quadrature nodes
+#: and at the substep's end (:func:`finish_row`: they depend on the row alone, so they are
+#: computed once per row, not per step).
+DECAYS = ("decay_v0", "decay_v1", "decay_v2", "decay_vh", "decay_w0", "decay_w1", "decay_w2",
+          "decay_wh")  # fmt: skip
+PARAMS = (*COLUMNS, "substeps", *DECAYS)
 V_GAIN, W_GAIN, V_FROM_W, W_FROM_V, TAU, SLIP = (PARAMS.index(c) for c in (
     "v_gain", "w_gain", "v_from_w", "w_from_v", "actuator_tau", "slip"))  # fmt: skip
 MASS, INERTIA, F_V, F_W, M_NOM, I_NOM, BW_V, BW_W, N_SUB = (PARAMS.index(c) for c in (
     "mass", "inertia", "friction_v", "friction_w", "nominal_mass", "nominal_inertia",
     "bandwidth_v", "bandwidth_w", "substeps"))  # fmt: skip
+D_V, D_W = PARAMS.index("decay_v0"), PARAMS.index("decay_w0")
 N_PARAMS = len(PARAMS)
 #: A substep of the lagged plant is at most this fraction of the fastest actuator time constant.
 SUBSTEP_FRACTION = 0.5
@@ -149,9 +158,46 @@ def delayed(ua, ints, buffer):
 def first_order(x0, target, tau, t):
     """A first-order channel ``x' = (target - x) / tau`` from ``x0``: ``(x(t), integral of x over
     [0, t])``, exactly: ``x(t) = target + (x0 - target) e^(-t/tau)``, its integral
-    ``target t - (x0 - target) tau expm1(-t/tau)``."""
-    e = math.expm1(-t / tau)
+    ``target t - (x0 - target) tau expm1(-t/tau)`` (:func:`first_order_decayed` with the decay
+    ``expm1(-t/tau)``)."""
+    return first_order_decayed(x0, target, tau, t, math.expm1(-t / tau))
+
+
+@njit(inline="always")
+def first_order_decayed(x0, target, tau, t, e):
+    """:func:`first_order` with its decay ``e = expm1(-t/tau)`` given (read from the row)."""
     return target + (x0 - target) * (1.0 + e), target * t - (x0 - target) * tau * e
+
+
+def table_row(values, model: int, dt: float, n_sub: int | None = None) -> np.ndarray:
+    """A row of the parameter table (:data:`N_PARAMS` entries) from the specification's columns
+    ``values`` (``wmr.robots.plantspec.Plant.row``): the integration's columns written by
+    :func:`finish_row` with ``n_sub`` substeps (default :func:`substeps`)."""
+    row = np.zeros(N_PARAMS)
+    row[: len(COLUMNS)] = values
+    finish_row(row, model, dt, substeps(row, model, dt) if n_sub is None else n_sub)
+    return row
+
+
+@njit
+def finish_row(row, model, dt, n_sub):
+    """Write the lagged integration's columns of a parameter ``row`` (in place): ``substeps =
+    n_sub`` and the :data:`DECAYS` -- ``expm1(-t / tau)`` of the v and w channels
+    (:func:`channels`) at ``t = node_j h`` and ``t = h``, ``h = dt / n_sub``, exactly as
+    :func:`first_order` would compute them each step (0 without actuator dynamics: unused)."""
+    row[N_SUB] = n_sub
+    for c in range(8):
+        row[D_V + c] = 0.0
+    if not (model == LAGGED_VELOCITY or row[TAU] > 0.0):
+        return
+    _, tau_v, _, tau_w = channels(row, model, 0.0, 0.0)
+    h = dt / n_sub
+    for j in range(3):
+        tj = _GL_NODES[j] * h
+        row[D_V + j] = math.expm1(-tj / tau_v)
+        row[D_W + j] = math.expm1(-tj / tau_w)
+    row[D_V + 3] = math.expm1(-h / tau_v)
+    row[D_W + 3] = math.expm1(-h / tau_w)
 
 
 @njit
@@ -178,7 +224,8 @@ _GL_WEIGHTS = (5.0 / 18.0, 8.0 / 18.0, 5.0 / 18.0)
 @njit
 def lagged_step(row, model, q, vel, a_v, a_w, dt, n_sub):
     """Advance the pose ``q`` and the actual velocities ``vel`` over ``dt`` with actuator
-    dynamics, in place, in ``n_sub`` equal substeps.
+    dynamics, in place, in ``n_sub`` equal substeps; ``row`` a row of the table, its decays
+    written for this ``dt`` and ``n_sub`` (:func:`table_row`).
 
     Per substep of length ``h`` the velocities and the heading are exact (:func:`first_order`:
     ``theta(t) = theta_0 + integral of w``); the position increments ``integral of (v cos theta -
@@ -195,10 +242,10 @@ def lagged_step(row, model, q, vel, a_v, a_w, dt, n_sub):
         th0 = q[2]
         fx = 0.0
         fy = 0.0
-        for j in range(3):
+        for j in range(3):  # the decays expm1(-t/tau) at the nodes: the row's (finish_row)
             tj = _GL_NODES[j] * h
-            v, _ = first_order(v0, tv_target, tau_v, tj)
-            w, dth = first_order(w0, tw_target, tau_w, tj)
+            v, _ = first_order_decayed(v0, tv_target, tau_v, tj, row[D_V + j])
+            w, dth = first_order_decayed(w0, tw_target, tau_w, tj, row[D_W + j])
             th = th0 + dth
             vs = -slip * v * w  # outward of the turn for slip > 0 (DESIGN §3.3)
             c = math.cos(th)
@@ -207,8 +254,8 @@ def lagged_step(row, model, q, vel, a_v, a_w, dt, n_sub):
             fy += _GL_WEIGHTS[j] * (v * s + vs * c)
         q[0] += h * fx
         q[1] += h * fy
-        vel[0], _ = first_order(v0, tv_target, tau_v, h)
-        vel[1], dth = first_order(w0, tw_target, tau_w, h)
+        vel[0], _ = first_order_decayed(v0, tv_target, tau_v, h, row[D_V + 3])
+        vel[1], dth = first_order_decayed(w0, tw_target, tau_w, h, row[D_W + 3])
         q[2] = th0 + dth
 
 
@@ -267,9 +314,7 @@ def arrays(spec, dt: float):
     for change in spec.changes:
         rows.append(spec.row(rows[-1], change.values))
         at.append(change.at)
-    table = np.array([[*r, 0.0] for r in rows], dtype=float)
-    for r in table:
-        r[N_SUB] = substeps(r, model, dt)
+    table = np.array([table_row(r, model, dt) for r in rows])
     ints = np.array([int(spec.ideal), model, spec.delay_steps, 0, 0], dtype=np.int64)
     return (table, np.array(at, dtype=float), ints, np.zeros(2),
             np.zeros((max(spec.delay_steps, 1), 2)))
