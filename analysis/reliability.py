@@ -378,10 +378,10 @@ def render(record: dict) -> str:
              f"saturation respected by every controller: {fmt(s['saturation_respected'])}."]
     seam = record["seam"]
     lines = [f"Heading seam: circles of {seam['turns']} turns (the heading crosses ±π once a "
-             "turn), noise 0.01: "
-             + "; ".join(f"{controllers.label(k)} crossed {v['heading_seam_crossings']} times, "
-                         f"θ RMSE {fmt(v['rmse_theta'])}"
-                         for k, v in seam.items() if isinstance(v, dict)) + ".", ""]  # fmt: skip
+             "turn), noise 0.01:", ""]
+    lines += [f"- {controllers.label(k)} crossed {v['heading_seam_crossings']} times, θ RMSE "
+              f"{fmt(v['rmse_theta'])};" for k, v in seam.items() if isinstance(v, dict)]
+    lines += [""]
     f = record["faults"]
     neg, wild = f["negative_covariance_diagonal"], f["overflowing_controller"]
     lines += ["Faults injected:", "",
