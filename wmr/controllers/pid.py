@@ -285,16 +285,16 @@ def pid_output(p, s, e, ref, dt, u):
         dw = 0.0
     s[S_PREV] = ex
     s[S_PREV + 1] = sw
-    # the regressor phi = s[S_PHI:S_PHI+6] and the gains K = s[S_K:S_K+6], indexed in s (a view
-    # of s would cost the loop a reference count per step)
-    s[S_PHI] = ex
-    s[S_PHI + 1] = s[S_INT]
-    s[S_PHI + 2] = dx
-    s[S_PHI + 3] = sw
-    s[S_PHI + 4] = s[S_INT + 1]
-    s[S_PHI + 5] = dw
-    u[0] = s[S_K] * s[S_PHI] + s[S_K + 1] * s[S_PHI + 1] + s[S_K + 2] * s[S_PHI + 2]
-    u[1] = s[S_K + 3] * s[S_PHI + 3] + s[S_K + 4] * s[S_PHI + 4] + s[S_K + 5] * s[S_PHI + 5]
+    phi = s[S_PHI : S_PHI + 6]
+    phi[0] = ex
+    phi[1] = s[S_INT]
+    phi[2] = dx
+    phi[3] = sw
+    phi[4] = s[S_INT + 1]
+    phi[5] = dw
+    K = s[S_K : S_K + 6]
+    u[0] = K[0] * phi[0] + K[1] * phi[1] + K[2] * phi[2]
+    u[1] = K[3] * phi[3] + K[4] * phi[4] + K[5] * phi[5]
     if p.feed_forward:
         u[0] += ref[3] * math.cos(e[2])
         u[1] += ref[4]
@@ -303,8 +303,7 @@ def pid_output(p, s, e, ref, dt, u):
     for c, limit in ((0, p.v_max), (1, p.w_max)):
         if abs(u[c]) > limit:
             u[c] = min(max(u[c], -limit), limit)
-            for i in range(3):
-                s[S_PHI + 3 * c + i] = 0.0
+            phi[3 * c : 3 * c + 3] = 0.0
 
 
 @njit(inline="always")

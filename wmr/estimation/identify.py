@@ -67,7 +67,7 @@ from wmr.estimation.robot_log import (
     LogError,
     read_log,
 )
-from wmr.robots import plant, plantspec
+from wmr.robots import plant
 from wmr.scenario import Plant
 
 __all__ = ["LogError", "PARAMETERS", "NOMINAL", "REQUIRED", "OPTIONAL", "MIN_ROWS",
@@ -160,12 +160,11 @@ def _table(values, dt: float, max_substeps: int | None = None) -> np.ndarray:
     :data:`PARAMETERS` (the other columns at ``wmr.scenario.Plant``'s defaults, substeps by
     ``wmr.robots.plant.substeps``,
     capped at ``max_substeps``)."""
-    row = np.zeros(plant.N_PARAMS)  # the columns, then the integration's (plant.finish_row)
-    row[: len(plantspec.COLUMNS)] = Plant().row()
-    row[_COLS] = values
-    n = plant.substeps(row, plant.KINEMATIC, dt)
+    cols = np.array(Plant().row(), dtype=float)  # the specification's columns come first
+    cols[_COLS] = values
+    n = plant.substeps(cols, plant.KINEMATIC, dt)
     n = n if max_substeps is None else min(n, max_substeps)
-    return plant.table_row(row[: len(plantspec.COLUMNS)], plant.KINEMATIC, dt, n)[None, :]
+    return plant.table_row(cols, plant.KINEMATIC, dt, n)[None, :]  # + the integration's columns
 
 
 def replay(log: Log, values, delay: int, starts, q0, max_substeps: int | None = None):
