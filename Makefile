@@ -39,10 +39,10 @@ robots: $(STAMP)
 	$(BIN)/python -m analysis.robots --out paper --full
 	$(BIN)/wmr report --out paper
 
-# The calibration study in full (about 2.5e5 runs; not yet timed: at the medium level's 25-37
-# runs/s on 2 workers that is 1.9-2.7 h, over the 90-minute target; its store resumes).  The
-# committed record is the medium level (`--level medium`: 45 min from an empty store).  `make
-# reproduce` only re-renders the committed record.
+# The calibration study in full (about 2.5e5 runs; not yet timed: at the medium level's ~80
+# runs/s on 2 workers the runs alone are ~55 min, and the emulator's fit on 4,096 design points
+# is untimed; its store resumes).  The committed record is the medium level (`--level medium`:
+# 27 min from an empty store).  `make reproduce` only re-renders the committed record.
 calibration: $(STAMP)
 	$(BIN)/python -m analysis.calibration --out paper --full --workers 2
 	$(BIN)/wmr report --out paper

@@ -387,16 +387,17 @@ def _held(r, failed=None):
 
 
 def test_fair_paired_ratio_recovers_a_planted_ratio_and_counts_divergence_apart():
-    """An arm 1.2 times another on every run: ratio 1.2 exactly (a zero-width interval, not a
-    tie); with seed noise the interval covers 1.2 about 95 % of the time; a diverged run
-    leaves the RMSE pairs and counts in McNemar only."""
-    from analysis.calibration.fair import paired
+    """An arm 1.2 times another on every run: ratio 1.2 exactly (a zero-width interval,
+    "higher", not a tie); with seed noise the interval covers 1.2 about 95 % of the time; a
+    diverged run leaves the RMSE pairs and counts in McNemar only."""
+    from analysis.calibration.verdicts import paired
 
     rng = np.random.default_rng(4)
-    b = np.exp(rng.normal(-3.0, 0.5, (10, 6)))
+    b = np.exp(rng.normal(-3.0, 0.3, (10, 6)))  # 5 cm typical: all well below TRACKING_M
     p = paired(_held(1.2 * b), _held(b))
     assert p["ratio"] == pytest.approx(1.2, rel=1e-12) and not p["tie"]
-    assert p["ratio_ci"] == pytest.approx([1.2, 1.2], rel=1e-9)
+    assert p["ratio_ci"] == pytest.approx([1.2, 1.2], rel=1e-9) and p["word"] == "higher"
+    assert paired(_held(b), _held(1.2 * b))["word"] == "lower"
     hits = 0
     for _rep in range(200):
         noise = np.exp(rng.normal(0.0, 0.1, (10, 1)))  # a per-seed factor on every cell
@@ -406,9 +407,65 @@ def test_fair_paired_ratio_recovers_a_planted_ratio_and_counts_divergence_apart(
     failed = np.zeros((10, 6), bool)
     failed[0, 0] = failed[3, 2] = True
     p = paired(_held(1.2 * b, failed), _held(b))
-    assert p["stable_pairs"] == 58 and p["pairs"] == 60
+    assert p["tracking_pairs"] == 58 and p["pairs"] == 60
     assert p["divergence"]["a_only"] == 2 and p["divergence"]["b_only"] == 0
+    assert p["tracking"]["a_only"] == 2 and p["tracking"]["by_cell"]["a_more"] == 2
     assert p["ratio"] == pytest.approx(1.2, rel=1e-12)  # no placeholder entered the mean
+    assert p["word"] == "higher"  # two cells of six: the sign test does not separate them
+
+
+def test_fair_metre_size_runs_fail_to_track_and_fail_by_cell():
+    """A run within the 10 m bound but a metre off the path fails to track (TRACKING_M): it is
+    not averaged into the ratio; failures on 6 of 6 cells separate the arms by the exact cell
+    sign test ("fails more", p = 1/32); the same count in one cell does not (the cell is the
+    unit, not the run), and an arm lower elsewhere but failing where the other tracks is
+    "mixed", not "lower"."""
+    from analysis.calibration.verdicts import paired
+    from analysis.regimes.stats import TRACKING_M
+
+    b = np.full((10, 6), 0.05)
+    a = 0.9 * b
+    a[0, :] = 1.0  # one seed a metre off on every cell: not diverged
+    p = paired(_held(a), _held(b))
+    assert p["divergence"]["a_only"] == 0 and p["tracking"]["a_only"] == 6
+    assert p["tracking"]["by_cell"] == {"cells": 6, "a_more": 6, "b_more": 0, "p": 0.03125}
+    assert p["word"] == "fails more" and p["tracking_pairs"] == 54
+    assert p["ratio"] == pytest.approx(0.9, rel=1e-12)  # the metre-size runs are not in it
+    a = 0.9 * b
+    a[:, 0] = 2 * TRACKING_M  # ten failures, all in one cell
+    p = paired(_held(a), _held(b))
+    assert p["tracking"]["a_only"] == 10 and p["tracking"]["by_cell"]["p"] == 1.0
+    # lower on the other five cells, but it fails where b tracks: neither order is claimed
+    assert p["ratio"] == pytest.approx(0.9, rel=1e-12) and p["word"] == "mixed"
+    b2 = b.copy()
+    b2[:, 0] = 2 * TRACKING_M  # b fails there too: the accuracy on the rest decides
+    assert paired(_held(a), _held(b2))["word"] == "lower"
+
+
+def test_fair_one_seed_is_undetermined_not_a_tie():
+    """With fewer than two seeds that have a both-tracking cell there is no interval: the
+    accuracy is undetermined, never a tie (a tie would claim the arms the same)."""
+    from analysis.calibration.verdicts import paired
+
+    p = paired(_held(np.full((1, 6), 0.06)), _held(np.full((1, 6), 0.05)))
+    assert p["ci"] is None and not p["tie"] and p["word"] == "undetermined"
+
+
+def test_fair_restart_dependent_when_the_runner_up_reverses_the_order():
+    """Arm a lower than b at its best restart and higher at its runner-up: the four pairings
+    disagree and the verdict is restart-dependent; with both restarts lower it is "lower"."""
+    from analysis.calibration.verdicts import across
+
+    rng = np.random.default_rng(7)
+    b = np.exp(rng.normal(-3.0, 0.3, (10, 6)))
+    runs_b = {"tuned": _held(b), "tuned-other": _held(b)}
+    v = across({"tuned": _held(0.8 * b), "tuned-other": _held(1.3 * b)}, runs_b)
+    assert v["pairings"] == {"tuned / tuned": "lower", "tuned / tuned-other": "lower",
+                             "tuned-other / tuned": "higher",
+                             "tuned-other / tuned-other": "higher"}  # fmt: skip
+    assert v["verdict"] == "restart-dependent"
+    v = across({"tuned": _held(0.8 * b), "tuned-other": _held(0.9 * b)}, runs_b)
+    assert v["verdict"] == "lower" and v["tuned"]["ratio"] == pytest.approx(0.8, rel=1e-12)
 
 
 def test_fair_arms_differ_only_in_the_law():
@@ -581,6 +638,34 @@ def test_emulator_learns_a_planted_function_with_honest_variances():
     more = em.condition(Xt[:10], f(Xt[:10]), np.ones((10, 36), bool))
     assert more.gps[3].kernel_ == em.gps[3].kernel_  # later waves keep the fitted kernel
     assert np.abs(more.predict(Xt[:10])[0] - f(Xt[:10])).max() < np.abs(err[:10]).max()
+
+
+def test_emulator_leaves_the_training_noise_out_of_its_variance():
+    """Targets that are noisy means (noise 0.2 on functions of spread ~1): told the noise, the
+    emulator's variance is that of the true mean (standardised errors against the noise-free
+    functions: mean square 0.5-1.5, >= 90 % within +-2); left to its White kernel, the noise
+    enters the predictive variance and the same errors come out far too small (mean square <
+    0.2: the double count the audit found, since the implausibility adds a run's seed noise
+    again)."""
+    from analysis.calibration.waves import Emulator
+
+    rng = np.random.default_rng(5)
+    a, b = rng.normal(0, 1, 36), rng.normal(0, 1, 36)
+
+    def f(x):
+        return np.outer(np.sin(3 * x[:, 0]), a) + np.outer(x[:, 1] ** 2, b)
+
+    X, Xt = rng.random((80, 2)), rng.random((300, 2))
+    Y = f(X) + rng.normal(0, 0.2, (80, 36))
+    ok = np.ones_like(Y, bool)
+    told = Emulator(jobs=1).fit(X, Y, ok, np.full(36, 0.04))
+    m, v = told.predict(Xt)
+    e = (m - f(Xt)) / np.sqrt(v)
+    assert 0.5 < np.mean(e**2) < 1.5 and np.mean(np.abs(e) <= 2) >= 0.9
+    m, v = Emulator(jobs=1).fit(X, Y, ok).predict(Xt)
+    assert np.mean(((m - f(Xt)) / np.sqrt(v)) ** 2) < 0.2
+    more = told.condition(Xt[:5], f(Xt[:5]), np.ones((5, 36), bool))
+    assert np.all(more.noise == told.noise)  # the waves keep the known noise
 
 
 def test_emulator_implausibility_closed_form():

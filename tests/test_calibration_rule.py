@@ -134,6 +134,18 @@ def test_pawn_matches_salib_and_ranks_a_linear_function():
     assert sorted(out["ties"][2]) == ["c", "dummy"]  # the inert setting ties with the dummy
 
 
+def test_pawn_ties_do_not_chain():
+    """Intervals a [0.5, 0.7], b [0.35, 0.55], c [0.2, 0.4]: b overlaps a and c, c does not
+    overlap a; the leader rule groups {a, b} and starts a new group at c (a chain of overlaps
+    would put a and c, told apart, in one group)."""
+    from analysis.calibration.pawn import ties
+
+    ix = {"a": {"index": 0.6, "low": 0.5, "high": 0.7},
+          "b": {"index": 0.45, "low": 0.35, "high": 0.55},
+          "c": {"index": 0.3, "low": 0.2, "high": 0.4}}  # fmt: skip
+    assert ties(ix) == [["a", "b"], ["c"]]
+
+
 def test_morris_effects_agree_with_salib():
     """The hand-written elementary effects equal SALib.analyze.morris's mu* and sigma on the
     same trajectories (a nonlinear function with an interaction)."""

@@ -167,40 +167,48 @@ def sensitivity_bars(record: dict):
 
 
 def fair_comparison(record: dict):
-    """Fair tuning, held out: each arm's RMSE ratio to the best with its 95 % interval (left),
-    and its share of diverged runs with the exact interval, tuned and at the defaults (right)."""
+    """Fair tuning, held out on the kinematic plants: each arm's RMSE ratio to the candidate
+    best with its 95 % interval at the four pairings of the two arms' restarts (left: filled
+    best / best, open the others), and its share of runs that fail to track, with the exact
+    interval, at its best restart, its runner-up and its defaults (right)."""
     import matplotlib.pyplot as plt
 
     f = record["fair_tuning"]
     names = [n for n in f["ranking"] if n != f["best"]]
-    pairs = [f["paired_with_best"][n] for n in names]
+    vs = [f["against_best"][n] for n in names]
     names.append(f["paper_arm"]["arm"])
-    pairs.append(f["paper_arm"]["against_best"])
-    fig, axes = plt.subplots(1, 2, figsize=(11, 0.5 * len(names) + 2), layout="constrained")
-    y = np.arange(len(names))
-    for i, (n, p) in enumerate(zip(names, pairs, strict=True)):
+    vs.append(f["paper_arm"]["against_best"])
+    fig, axes = plt.subplots(1, 2, figsize=(11, 0.5 * len(names) + 2.2), layout="constrained")
+    for i, (n, v) in enumerate(zip(names, vs, strict=True)):
         col = controllers.colour(n.split("@")[0])
-        if p["ci"] is not None:
+        for j, p in enumerate([v["tuned"], *v["by"].values()]):
+            if p["ci"] is None:
+                continue
             lo, hi = p["ratio_ci"]
-            axes[0].errorbar([p["ratio"]], [i], xerr=[[p["ratio"] - lo], [hi - p["ratio"]]],
-                             fmt="o", color=col, capsize=3)  # fmt: skip
+            axes[0].errorbar([p["ratio"]], [i + 0.15 * j - 0.2], fmt="o", color=col, capsize=2,
+                             xerr=[[p["ratio"] - lo], [hi - p["ratio"]]],
+                             mfc=None if j == 0 else "none")  # fmt: skip
+        axes[0].annotate(v["verdict"], (1.0, i), xytext=(4, 6), textcoords="offset points",
+                         fontsize=7, color="0.3")  # fmt: skip
     axes[0].axvline(1.0, color="k", lw=0.8)
     axes[0].axvspan(1 / 1.05, 1.05, color="0.85", zorder=0)
-    axes[0].set(yticks=y, yticklabels=names, xscale="log",
-                xlabel=f"RMSE ratio to {f['best']} (after the transient; grey: +-5 %)",
-                title="tuned alike, held out")  # fmt: skip
+    axes[0].set(yticks=np.arange(len(names)), yticklabels=names, xscale="log",
+                xlabel=f"RMSE ratio to {f['best']} on both-tracking runs (grey: +-5 %)",
+                title="tuned alike, held out: ratio at the restart pairings")  # fmt: skip
     arms = list(f["ranking"]) + [f["paper_arm"]["arm"]]
-    for j, (key, mk, off) in enumerate((("held_out", "o", -0.15), ("default_held_out", "s",
-                                                                    0.15))):  # fmt: skip
+    levels = (("held_out", "o", -0.2, "best restart"), ("other_held_out", "D", 0.0,
+              "runner-up restart"), ("default_held_out", "s", 0.2, "defaults"))  # fmt: skip
+    for j, (key, mk, off, label) in enumerate(levels):
         for i, n in enumerate(arms):
-            d = f["arms"][n][key]["divergence"]
+            d = f["arms"][n][key]["tracking_failure"]
             axes[1].errorbar([d["share"]], [i + off], xerr=[[d["share"] - d["ci_low"]],
                              [d["ci_high"] - d["share"]]], fmt=mk, capsize=2,
                              color=controllers.colour(n.split("@")[0]), mfc="none" if j else None,
-                             label=("tuned", "defaults")[j] if i == 0 else None)  # fmt: skip
+                             label=label if i == 0 else None)  # fmt: skip
     axes[1].set(yticks=np.arange(len(arms)), yticklabels=arms, xlim=(-0.02, 1.02),
-                xlabel="share of held-out runs diverged (Clopper-Pearson 95 %)",
-                title="divergence")  # fmt: skip
+                xlabel=f"share of held-out runs failing to track (diverged or RMSE > "
+                       f"{f['held_out']['tracking_m']:g} m; Clopper-Pearson 95 %)",
+                title="tracking failure")  # fmt: skip
     axes[1].legend(fontsize=8)
     return fig
 

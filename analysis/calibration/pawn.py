@@ -85,12 +85,13 @@ def pawn(X: np.ndarray, Y: np.ndarray, names, outputs, seed: int = 0,
 
 
 def ties(ix: dict) -> list[list[str]]:
-    """The settings ranked by index, grouped: a setting joins the group before it when its
-    interval overlaps the interval of any member of that group."""
+    """The settings ranked by index, grouped: a setting joins the current group when its
+    interval overlaps the interval of the group's leader (its highest index), so that no two
+    settings whose intervals are apart end in one group through a chain of overlaps."""
     order = sorted(ix, key=lambda k: -ix[k]["index"])
     groups: list[list[str]] = []
     for k in order:
-        if groups and any(ix[k]["high"] >= ix[g]["low"] for g in groups[-1]):
+        if groups and ix[k]["high"] >= ix[groups[-1][0]]["low"]:
             groups[-1].append(k)
         else:
             groups.append([k])

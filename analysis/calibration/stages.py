@@ -99,7 +99,7 @@ QUICK = Level("quick", (0,), morris_r=2, design_m=3, rule_seeds=(0, 1, 2), n_tru
               verdict_top=2, cma_restarts=2, cma_popsize=4, cma_maxfevals=4,
               fair=Budget(per_setting=1, train_seeds=(100,), test_seeds=(200,),
                           train_duration=3.0, training=1, duration=21.0,
-                          plants=("ideal", "slip")),
+                          plants=("slip", "mujoco")),
               factors={"duration": Factor("duration", levels=(21.0,)),
                        "dt": Factor("dt", levels=(0.05,))},
               base={"duration": 21.0, "dt": 0.05}, screen_fraction=0.3,

@@ -4,7 +4,12 @@ emulator, and their recovery of planted truths.
 **The emulator** (:class:`Emulator`).  One Gaussian process per number (scikit-learn's
 ``GaussianProcessRegressor``: a constant times an anisotropic RBF kernel plus white noise,
 ``normalize_y``) of the seed mean of its log RMSE over the unit cube of the settings varied,
-trained on the design points where none of that number's runs diverged.  The kernel's
+trained on the design points where none of that number's runs diverged.  A training target is
+a mean over the design's seeds, so its seed noise (one run's seed variance over their number,
+:func:`seed_variance`) is the process's known noise (``alpha``), left out of the predictive
+variance (the target of a prediction is the simulator's mean, not another noisy mean; the
+implausibility adds the target run's own seed variance); the White kernel is the nugget, the
+roughness beyond that noise, and stays in.  The kernel's
 hyperparameters are fitted once, on the space-filling design (wave 0); later waves condition
 on their new points with those hyperparameters (``optimizer=None``).  Each process's
 variance is multiplied by its mean squared standardised leave-one-out error on the design
@@ -36,8 +41,9 @@ store), conditions the emulators on them and cuts the retained sample again (a p
 ruled out stays out: the waves' regions are nested).
 
 **Planted recovery** (:func:`recovery`): for each planted truth the waves run with its numbers
-as the target; recovered when the truth's own setting is not ruled out by the last wave's
-emulators; the record gives the recovery rate (Clopper-Pearson) and the retained volumes.
+as the target; recovered when the truth's own setting is not ruled out by any wave's
+emulators (nested, as the region is); the record gives the recovery rate (Clopper-Pearson)
+and the retained volumes.
 Wave 0 (the design's emulators alone) is judged for every planted truth at no extra runs; the
 later waves for the first ``recovery_truths`` of them.
 """
@@ -99,9 +105,13 @@ class Emulator:
         self.restarts, self.seed, self.jobs = restarts, seed, jobs
         self.gps: list = []
         self.inflate = np.ones(36)
+        self.noise = np.zeros(36)
         self.X = self.Y = self.ok = None
 
-    def _gp(self, kernel=None, optimizer="fmin_l_bfgs_b"):
+    def _gp(self, y: np.ndarray, i: int, kernel=None, optimizer="fmin_l_bfgs_b"):
+        """Number ``i``'s process for targets ``y``: its training noise ``noise[i]`` as the
+        known diagonal ``alpha`` (in ``normalize_y``'s units, ``y``'s variance), so that the
+        predictive variance leaves it out; the White kernel is the nugget, which stays in."""
         from sklearn.gaussian_process import GaussianProcessRegressor
         from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
 
@@ -109,32 +119,40 @@ class Emulator:
             d = self.X.shape[1]
             kernel = (ConstantKernel(1.0, (1e-3, 1e3)) * RBF(np.full(d, 0.5), (1e-2, 1e2))
                       + WhiteKernel(0.1, (1e-6, 1e1)))  # fmt: skip
-        return GaussianProcessRegressor(kernel, normalize_y=True, optimizer=optimizer,
-                                        n_restarts_optimizer=self.restarts,
+        var = float(np.var(y)) if y.size > 1 else 1.0
+        alpha = max(float(self.noise[i]) / var, 1e-10) if var > 0 else 1e-10
+        return GaussianProcessRegressor(kernel, alpha=alpha, normalize_y=True,
+                                        optimizer=optimizer, n_restarts_optimizer=self.restarts,
                                         random_state=self.seed)  # fmt: skip
 
-    def fit(self, X: np.ndarray, Y: np.ndarray, ok: np.ndarray) -> Emulator:
+    def fit(self, X: np.ndarray, Y: np.ndarray, ok: np.ndarray,
+            noise: np.ndarray | None = None) -> Emulator:  # fmt: skip
         """Fit each number's process (kernel hyperparameters too) on the rows where ``ok``,
-        the numbers spread over ``jobs`` processes (each process's fit is seeded: the same
-        emulator whatever ``jobs``)."""
+        ``noise`` (36,) the variance of a training target's seed mean (None: 0), the numbers
+        spread over ``jobs`` processes (each process's fit is seeded: the same emulator
+        whatever ``jobs``)."""
         from joblib import Parallel, delayed
 
         self.X, self.Y, self.ok = np.asarray(X), np.asarray(Y), np.asarray(ok)
+        self.noise = np.zeros(self.Y.shape[1]) if noise is None else np.asarray(noise, float)
         cols = [self.ok[:, i] for i in range(self.Y.shape[1])]
         self.gps = Parallel(n_jobs=self.jobs)(
-            delayed(_fit_one)(self._gp(), self.X[m], self.Y[m, i]) for i, m in enumerate(cols))
+            delayed(_fit_one)(self._gp(self.Y[m, i], i), self.X[m], self.Y[m, i])
+            for i, m in enumerate(cols))  # fmt: skip
         self.inflate = np.array([max(1.0, loo_ratio(g)) for g in self.gps])
         return self
 
     def condition(self, X: np.ndarray, Y: np.ndarray, ok: np.ndarray) -> Emulator:
         """A new emulator on these rows and the old ones, with the fitted kernels."""
         out = Emulator(self.restarts, self.seed, self.jobs)
-        out.inflate = self.inflate
+        out.inflate, out.noise = self.inflate, self.noise
         out.X, out.Y = np.vstack([self.X, X]), np.vstack([self.Y, Y])
         out.ok = np.vstack([self.ok, ok])
-        out.gps = [self._gp(g.kernel_, optimizer=None).fit(out.X[out.ok[:, i]],
-                                                           out.Y[out.ok[:, i], i])
-                   for i, g in enumerate(self.gps)]  # fmt: skip
+        out.gps = []
+        for i, g in enumerate(self.gps):
+            m = out.ok[:, i]
+            out.gps.append(out._gp(out.Y[m, i], i, g.kernel_, optimizer=None)
+                           .fit(out.X[m], out.Y[m, i]))  # fmt: skip
         return out
 
     def predict(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -234,9 +252,10 @@ def history_match(ev, space, em0: Emulator, v_seed, z, mc: np.ndarray, cfg: Wave
     c = rule.threshold(len(seeds))  # the normal Sidak quantile (the rule's c)
     em = em0
     keep = implausibility(*em.predict(mc), z, v_seed) <= c
+    kept = None if truth is None else bool(implausibility(*em.predict(truth[None]), z,
+                                                          v_seed)[0] <= c)  # fmt: skip
     out = {"retained": [float(keep.mean())], "runs": [0],
-           "truth_retained": [] if truth is None else
-           [bool(implausibility(*em.predict(truth[None]), z, v_seed)[0] <= c)]}  # fmt: skip
+           "truth_retained": [] if truth is None else [kept]}
     for w in range(1, (cfg.waves if waves is None else waves) + 1):
         idx = np.flatnonzero(keep)
         if idx.size == 0:
@@ -250,9 +269,9 @@ def history_match(ev, space, em0: Emulator, v_seed, z, mc: np.ndarray, cfg: Wave
         keep[idx] = implausibility(*em.predict(mc[idx]), z, v_seed) <= c
         out["retained"].append(float(keep.mean()))
         out["runs"].append(int(pick.size * len(seeds) * 12))
-        if truth is not None:
-            out["truth_retained"].append(
-                bool(implausibility(*em.predict(truth[None]), z, v_seed)[0] <= c))
+        if truth is not None:  # nested as the region is: once ruled out, the truth stays out
+            kept = kept and bool(implausibility(*em.predict(truth[None]), z, v_seed)[0] <= c)
+            out["truth_retained"].append(kept)
     out["retained_points"] = int(keep.sum())
     if keep.any():
         imp = implausibility(*em.predict(mc[keep]), z, v_seed)
@@ -298,11 +317,11 @@ def study(ev, level, space, des: dict, truths_u: Sequence, cfg: Waves) -> dict:
     seeds = tuple(level.seeds)
     truths = np.asarray(truths_u, dtype=float).reshape(len(truths_u), len(space.names))
     y, ok = _log_means(des["nums"], stages_diverged(des))
-    t0 = time.perf_counter()
-    em0 = Emulator(cfg.restarts, jobs=cfg.jobs).fit(des["u"], y, ok)
-    fit_s = round(time.perf_counter() - t0, 1)
     t_nums, t_div = _run(ev, space, truths, level.rule_seeds, "planted truths")
     v_seed = seed_variance(t_nums, t_div)  # K seeds at each of the truths, uniform on the prior
+    t0 = time.perf_counter()
+    em0 = Emulator(cfg.restarts, jobs=cfg.jobs).fit(des["u"], y, ok, v_seed / len(seeds))
+    fit_s = round(time.perf_counter() - t0, 1)
     val = validate(em0, truths, t_nums, t_div, v_seed)
     targets = []
     for t, u in enumerate(truths):  # each truth's "paper": one run, rounded as printed
@@ -322,8 +341,11 @@ def study(ev, level, space, des: dict, truths_u: Sequence, cfg: Waves) -> dict:
                         f">= {100 * RECOVER:.0f} % of the planted truths (the 36-number "
                         "maximum is what decides)")
     return {"emulator": {"form": "scikit-learn GaussianProcessRegressor per number: C * RBF "
-                                 "(anisotropic) + White, normalize_y, hyperparameters fitted on "
-                                 "the design, then fixed", "trained_on": int(des["u"].shape[0]),
+                                 "(anisotropic) + White (the nugget), normalize_y, the training "
+                                 "targets' seed noise (s^2 / the design's seeds) as its known "
+                                 "alpha, outside the predictive variance; hyperparameters "
+                                 "fitted on the design, then fixed",
+                         "trained_on": int(des["u"].shape[0]),
                          "fit_seconds": fit_s, "inflate": em0.inflate.round(3).tolist(),
                          "validation": val},
             "seed_variance": v_seed.tolist(), "threshold": rule.threshold(len(seeds)),
