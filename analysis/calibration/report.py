@@ -253,10 +253,14 @@ def _answer_fair(r: dict) -> list[str]:
             for n in [*f["ranking"], pa["arm"]]]  # fmt: skip
     where = (f"on the paper's three scenarios over {len(ho['plants'])} held-out kinematic "
              "plants")
+    worse = [n for n in failing
+             if arms[n]["default_held_out"]["tracking_failure"]["diverged"] == 0]
     lines = [_who(f, where),
              (f"Held out, {_names(failing)} fail to track on some runs (diverged, or RMSE "
               f"after the transient above {ho['tracking_m']:g} m)." if failing else
               "No arm fails to track held out."),
+             *([f"At their defaults {_names(worse)} track every held-out run; tuned "
+                "on the training plants, they do not."] if worse else []),
              f"The paper's set-up, {_arm(pa['arm'])}, is '{pa['against_raw']['verdict']}' "
              f"against the same law on the measured pose and '{pa['against_best']['verdict']}' "
              f"against {_arm(best)}."]
