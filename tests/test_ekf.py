@@ -80,6 +80,67 @@ def test_symmetric_rank_update_is_bit_identical_and_exactly_symmetric(m, n):
     np.testing.assert_array_equal(P, P.T)
 
 
+@pytest.mark.parametrize("m", [1, 2, 3, 4])
+@pytest.mark.parametrize("n", [1, 2, 7, 83])
+def test_s_d_and_state_correction_are_bit_identical_to_their_sequential_sums(m, n):
+    """Oracles in numpy, summed in the documented order (each entry a left-to-right sum, no
+    FMA): ``S = (H P) H^T + R`` over ``b = 0 .. n-1``, ``D^T = -H P + sum_s (S_rs / 2) K_s`` and
+    ``x + sum_r K_r nu_r``; the fused m = 3 passes must not change a single bit."""
+    rng = np.random.default_rng(100 * n + m)
+    HP, H, Kt = rng.normal(size=(m, n)), rng.normal(size=(m, n)), rng.normal(size=(m, n))
+    R = _spd(rng, m)
+    S_expected = np.empty((m, m))
+    for r in range(m):
+        for s in range(m):
+            acc = 0.0
+            for b in range(n):
+                acc = acc + HP[r, b] * H[s, b]
+            S_expected[r, s] = acc + R[r, s]
+    S = np.full((m, m), np.nan)
+    ekf.innovation_covariance(HP, H, R, S)
+    np.testing.assert_array_equal(S, S_expected)
+    D_expected = -HP
+    for s in range(m):
+        D_expected = D_expected + (0.5 * S[:, s])[:, None] * Kt[s][None, :]
+    Dt = np.full((m, n), np.nan)
+    ekf._d_matrix(S, Kt, HP, Dt)
+    np.testing.assert_array_equal(Dt, D_expected)
+    x, nu = rng.normal(size=n), rng.normal(size=m)
+    x_expected = x.copy()
+    for r in range(m):
+        x_expected = x_expected + Kt[r] * nu[r]
+    ekf._add_gain_times(x, Kt, nu)
+    np.testing.assert_array_equal(x, x_expected)
+
+
+def _pose_cases():
+    """Pose-filter updates: random SPD covariances and innovations over several scales, then
+    the edges where IEEE arithmetic keeps what an identity would drop (a -0 entry, inf, NaN)
+    and a covariance that is not positive definite."""
+    rng = np.random.default_rng(3)
+    for scale in (1e-8, 1e-4, 1.0, 1e4):
+        for _ in range(50):
+            yield _spd(rng, 3, scale), rng.normal(size=3) * scale**0.5, _spd(rng, 3, scale)
+    P = _spd(rng, 3)
+    for i, j, v in ((0, 1, -0.0), (2, 2, np.inf), (1, 0, np.nan), (0, 0, -1.0)):
+        Q = P.copy()
+        Q[i, j] = v
+        yield Q, rng.normal(size=3), _spd(rng, 3)
+
+
+def test_pose_update_written_out_is_the_general_update_bit_for_bit():
+    """Oracle: ``joseph_update`` with ``H = I_3`` (the general O(n^2 m) update)."""
+    for P, nu, R in _pose_cases():
+        x1, P1 = np.arange(3.0), P.copy()
+        x2, P2 = np.arange(3.0), P.copy()
+        nis1 = ekf.joseph_update(x1, P1, np.eye(3), nu, R, np.empty((3, 3, 3)))
+        nis2 = ekf.joseph_identity3(x2, P2, nu, R, np.empty((3, 3, 3)), np.empty((3, 3, 3)))
+        np.testing.assert_array_equal(np.array([nis2]), np.array([nis1]))
+        np.testing.assert_array_equal(x2, x1)
+        np.testing.assert_array_equal(P2, P1)
+        assert np.array_equal(np.signbit(P2), np.signbit(P1))
+
+
 @pytest.mark.parametrize("integrator", [kin.EXACT, kin.EULER, kin.RK4])
 def test_pose_predict_is_the_congruence_and_stays_exactly_symmetric(integrator):
     rng = np.random.default_rng(integrator)

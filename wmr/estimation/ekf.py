@@ -27,6 +27,8 @@ __all__ = [
     "weight_update",
     "weight_update_reference",
     "joseph_update",
+    "joseph_identity3",
+    "innovation_covariance",
     "repair_covariance",
     "is_positive_definite",
     "pose_predict",
@@ -111,12 +113,7 @@ def joseph_update(x, P, H, innovation, R, work, small=None):
         y = small[2, 0]
     # M^T = H P (= (P H^T)^T for symmetric P)
     _h_times_p(H, P, HP)
-    for r in range(m):
-        for s in range(m):
-            acc = 0.0
-            for b in range(n):
-                acc += HP[r, b] * H[s, b]
-            S[r, s] = acc + R[r, s]
+    innovation_covariance(HP, H, R, S)
     for r in range(m):
         for s in range(r):
             v = 0.5 * (S[r, s] + S[s, r])
@@ -127,23 +124,89 @@ def joseph_update(x, P, H, innovation, R, work, small=None):
     # K^T = S^{-1} H P, by forward and back substitution with L L^T = S
     cholesky_solve_rows(L, HP, Kt)
     # D^T = (S K^T) / 2 - H P; S K^T equals H P only up to round-off, and that is the point
+    _d_matrix(S, Kt, HP, Dt)
+    nis = _normalised_square(L, innovation, y)
+    _add_gain_times(x, Kt, innovation)
+    _symmetric_rank_update(P, Kt, Dt)
+    return nis
+
+
+@njit
+def innovation_covariance(HP, H, R, S):
+    """``S = (H P) H^T + R`` (m, m), each entry the sum over ``b = 0 .. n-1`` in that order.
+
+    For ``m = 3`` the nine sums run in one pass over ``b``: nine independent chains of additions
+    in flight instead of one at a time (a sum's order is fixed, so it cannot be vectorised; its
+    additions wait on each other).  Same sums, same order: bit-identical (test_ekf).
+    """
+    m, n = HP.shape
+    if m == 3:
+        a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
+        h0, h1, h2 = HP[0], HP[1], HP[2]
+        g0, g1, g2 = H[0], H[1], H[2]
+        for b in range(n):
+            x0, x1, x2, y0, y1, y2 = h0[b], h1[b], h2[b], g0[b], g1[b], g2[b]
+            a00 += x0 * y0
+            a01 += x0 * y1
+            a02 += x0 * y2
+            a10 += x1 * y0
+            a11 += x1 * y1
+            a12 += x1 * y2
+            a20 += x2 * y0
+            a21 += x2 * y1
+            a22 += x2 * y2
+        S[0, 0], S[0, 1], S[0, 2] = a00 + R[0, 0], a01 + R[0, 1], a02 + R[0, 2]
+        S[1, 0], S[1, 1], S[1, 2] = a10 + R[1, 0], a11 + R[1, 1], a12 + R[1, 2]
+        S[2, 0], S[2, 1], S[2, 2] = a20 + R[2, 0], a21 + R[2, 1], a22 + R[2, 2]
+        return
+    for r in range(m):
+        for s in range(m):
+            acc = 0.0
+            for b in range(n):
+                acc += HP[r, b] * H[s, b]
+            S[r, s] = acc + R[r, s]
+
+
+@njit
+def _d_matrix(S, Kt, HP, Dt):
+    """``D^T = (S K^T) / 2 - H P`` (m, n): entry ``(r, b)`` is ``-HP[r, b] + c_0 K[b, 0] + c_1
+    K[b, 1] + ...`` (left to right, ``c_s = S[r, s] / 2``), one pass over ``b`` per row when
+    ``m = 3`` (the same sums as a pass per term: bit-identical)."""
+    m, n = Kt.shape
     for r in range(m):
         out = Dt[r]
+        hp = HP[r]
+        if m == 3:
+            c0, c1, c2 = 0.5 * S[r, 0], 0.5 * S[r, 1], 0.5 * S[r, 2]
+            K0, K1, K2 = Kt[0], Kt[1], Kt[2]
+            for b in range(n):
+                out[b] = -hp[b] + c0 * K0[b] + c1 * K1[b] + c2 * K2[b]
+            continue
         for b in range(n):
-            out[b] = -HP[r, b]
+            out[b] = -hp[b]
         for s in range(m):
             c = 0.5 * S[r, s]
             Ks = Kt[s]
             for b in range(n):
                 out[b] += c * Ks[b]
-    nis = _normalised_square(L, innovation, y)
+
+
+@njit
+def _add_gain_times(x, Kt, innovation):
+    """``x += K innovation`` in place: ``x[b] + K[b, 0] nu_0 + K[b, 1] nu_1 + ...`` left to right,
+    one pass when ``m = 3`` (bit-identical to a pass per output)."""
+    m, n = Kt.shape
+    if m == 3:
+        c0, c1, c2 = innovation[0], innovation[1], innovation[2]
+        K0, K1, K2 = Kt[0], Kt[1], Kt[2]
+        for b in range(n):
+            x[b] = x[b] + K0[b] * c0 + K1[b] * c1 + K2[b] * c2
+        return
     for r in range(m):
         c = innovation[r]
         Kr = Kt[r]
         for b in range(n):
             x[b] += Kr[b] * c
-    _symmetric_rank_update(P, Kt, Dt)
-    return nis
 
 
 @njit
@@ -191,25 +254,23 @@ def _symmetric_rank_update(P, Kt, Dt):
     ``t_r = D[a, r] K[b, r] + K[a, r] D[b, r]``; ``t_r`` is the same IEEE number at ``(b, a)``, so
     a symmetric ``P`` stays exactly symmetric.  Full rows, not the upper triangle: mirroring a
     triangle costs more in strided stores than the multiplications it saves (measured).  The
-    ``m = 3`` case is written out and does two rows per pass, so each ``K``, ``D`` element loaded
-    serves both; the arithmetic is the same, so the result is bit-identical (test_ekf).
+    ``m = 3`` case is written out, one row per pass with the three terms fused: one row stored per
+    loop keeps the loop's possible overlaps few enough for LLVM to vectorise it behind its
+    run-time checks (two rows per pass were not vectorised: measured 10-25 % slower).  The
+    arithmetic is the same, so the result is bit-identical (test_ekf).
     """
     m, n = Kt.shape
-    a = 0
     if m == 3:
         K0, K1, K2 = Kt[0], Kt[1], Kt[2]
         D0, D1, D2 = Dt[0], Dt[1], Dt[2]
-        while a + 1 < n:  # rows a and a + 1
-            r1, r2 = P[a], P[a + 1]
+        for a in range(n):
+            row = P[a]
             d0, d1, d2, k0, k1, k2 = D0[a], D1[a], D2[a], K0[a], K1[a], K2[a]
-            e0, e1, e2 = D0[a + 1], D1[a + 1], D2[a + 1]
-            l0, l1, l2 = K0[a + 1], K1[a + 1], K2[a + 1]
             for b in range(n):
-                x0, x1, x2, y0, y1, y2 = K0[b], K1[b], K2[b], D0[b], D1[b], D2[b]
-                r1[b] = r1[b] + (d0 * x0 + k0 * y0) + (d1 * x1 + k1 * y1) + (d2 * x2 + k2 * y2)
-                r2[b] = r2[b] + (e0 * x0 + l0 * y0) + (e1 * x1 + l1 * y1) + (e2 * x2 + l2 * y2)
-            a += 2
-    for i in range(a, n):  # every row when m != 3; the last row when n is odd
+                row[b] = (row[b] + (d0 * K0[b] + k0 * D0[b]) + (d1 * K1[b] + k1 * D1[b])
+                          + (d2 * K2[b] + k2 * D2[b]))  # fmt: skip
+        return
+    for i in range(n):
         row = P[i]
         for r in range(m):
             d_a = Dt[r, i]
@@ -402,12 +463,67 @@ def pose_update(q_hat, P, z, Rp, work=None):
     for i in range(3):
         nu[i] = z[i] - q_hat[i]
     nu[2] = wrap_angle(nu[2])
-    H = work[_W_H]
-    for i in range(3):
-        for j in range(3):
-            H[i, j] = 1.0 if i == j else 0.0
-    return joseph_update(q_hat, P, H, nu, Rp, work[_W_JOSEPH : _W_JOSEPH + 3],
-                         work[_W_SMALL : _W_SMALL + 3])  # fmt: skip
+    return joseph_identity3(q_hat, P, nu, Rp, work[_W_JOSEPH : _W_JOSEPH + 3],
+                            work[_W_SMALL : _W_SMALL + 3])  # fmt: skip
+
+
+@njit
+def joseph_identity3(x, P, innovation, R, work, small):
+    """:func:`joseph_update` with ``H = I_3`` and ``n = m = 3`` (the pose filter), written out.
+
+    Every operation of the general update, in its order, on the same values -- the products with
+    the identity's ones and zeros included (IEEE arithmetic may not drop them: ``-0``, ``inf``) --
+    so the result is the general update's bit for bit (test_ekf); what is left out is the
+    general update's loops sized at run time, whose set-up cost a 3 x 3 update several times its
+    arithmetic.  ``work`` (3, 3, 3) and ``small`` (3, 3, 3) are scratch as there.
+    """
+    HP, Kt, Dt = work[0], work[1], work[2]
+    S, L, y = small[0], small[1], small[2, 0]
+    for a in range(3):  # H P: row a of P added once, with the factor 1, to a zero row
+        for b in range(3):
+            HP[a, b] = 0.0 + 1.0 * P[a, b]
+    for r in range(3):  # S = (H P) H^T + R, each entry summed over b in order
+        for s in range(3):
+            acc = 0.0
+            for b in range(3):
+                acc += HP[r, b] * (1.0 if s == b else 0.0)
+            S[r, s] = acc + R[r, s]
+    for r in range(3):
+        for s in range(r):
+            v = 0.5 * (S[r, s] + S[s, r])
+            S[r, s] = v
+            S[s, r] = v
+    if not cholesky(S, L):
+        return np.nan
+    for r in range(3):  # K^T = S^{-1} H P: forward, then back substitution (cholesky_solve_rows)
+        for b in range(3):
+            Kt[r, b] = HP[r, b]
+        for s in range(r):
+            for b in range(3):
+                Kt[r, b] -= L[r, s] * Kt[s, b]
+        inv = 1.0 / L[r, r]
+        for b in range(3):
+            Kt[r, b] *= inv
+    for r in range(2, -1, -1):
+        for s in range(r + 1, 3):
+            for b in range(3):
+                Kt[r, b] -= L[s, r] * Kt[s, b]
+        inv = 1.0 / L[r, r]
+        for b in range(3):
+            Kt[r, b] *= inv
+    for r in range(3):  # D^T = (S K^T) / 2 - H P (_d_matrix)
+        for b in range(3):
+            Dt[r, b] = (-HP[r, b] + 0.5 * S[r, 0] * Kt[0, b] + 0.5 * S[r, 1] * Kt[1, b]
+                        + 0.5 * S[r, 2] * Kt[2, b])  # fmt: skip
+    nis = _normalised_square(L, innovation, y)
+    for b in range(3):  # x += K innovation (_add_gain_times)
+        x[b] = x[b] + Kt[0, b] * innovation[0] + Kt[1, b] * innovation[1] + Kt[2, b] * innovation[2]
+    for a in range(3):  # P += D K^T + K D^T (_symmetric_rank_update)
+        for b in range(3):
+            P[a, b] = (P[a, b] + (Dt[0, a] * Kt[0, b] + Kt[0, a] * Dt[0, b])
+                       + (Dt[1, a] * Kt[1, b] + Kt[1, a] * Dt[1, b])
+                       + (Dt[2, a] * Kt[2, b] + Kt[2, a] * Dt[2, b]))  # fmt: skip
+    return nis
 
 
 @njit
