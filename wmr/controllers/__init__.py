@@ -22,7 +22,8 @@ row, ``tests/test_registry.py``):
    it applied (the loop saturates again; that clip is then a no-op).
 4. ``state_names``: the first ``len(state_names)`` entries of ``s`` are logged along a run under
    these names (``RunResult.signal``).
-5. ``final_state(p, s, theta, P)``: the controller state as a dataclass (``RunResult.final``).
+5. ``final_state(p, s, theta, P)``: the controller state as a dataclass (``RunResult.final``),
+   called once, when the run is over: it may keep the run's arrays rather than copy them.
 6. ``uses_estimator``: whether it acts on the pose filter's estimate under
    ``pose_source = "paper"`` (``wmr.scenario.Estimator.filters``).
 7. ``label`` and ``colour``: how tables and figures name and draw it.

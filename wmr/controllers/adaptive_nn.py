@@ -164,8 +164,9 @@ class State:
 
 
 def final_state(p, s, theta, P) -> State:
-    """The controller state as a :class:`State`."""
-    return State(theta=theta.copy(), P=P.copy(), nn_output=s[_S_NN : _S_NN + 2].copy(),
+    """The controller state as a :class:`State`; it keeps the run's ``theta`` and ``P`` (the run
+    is over and owns them alone)."""
+    return State(theta=theta, P=P, nn_output=s[_S_NN : _S_NN + 2].copy(),
                  previous_input=s[_S_U : _S_U + 2].copy(), cov_repairs=int(s[_S_REPAIRS]))
 
 
