@@ -215,27 +215,30 @@ def calibration(cal: dict) -> Finding:
     """Could any plausible setting give the paper's tables (the rule's coverage and power, the
     verdict and its scope, the ranking's probability over the prior)."""
     from analysis.calibration import TITLE
+    from analysis.calibration.rule import DELTA
 
     pl, v, fit, po = cal["planted"], cal["verdict"], cal["best_fit"], cal["p_paper_order"]
     cov = pl["coverage"]
     near = max(pl["power"], key=float)  # the farthest: where a rule must decide
     pw = pl["power"][near]
-    at = v["by_delta"][min(v["by_delta"], key=lambda k: abs(float(k) - v["delta"]))]
+    at = v["by_delta"][f"{DELTA:g}"]  # the verdict's discrepancy (its key: the rule's constant)
+    widest = max(v["by_delta"], key=float)  # the largest discrepancy shown (a key: a constant)
     a9, ia = po["all_nine"], po["iapid_first_all"]
     n_ok = at["count"]
     passes = (f"{n_ok} of the {v['n_candidates']} settings examined pass it"
               if n_ok else f"None of the {v['n_candidates']} settings examined passes it")
     spread = fit["spread"]
-    text = (f"The feasibility rule (threshold {v['threshold']:.2f}, the normal Šidák quantile "
-            f"for 36 numbers) accepts a planted truth {int(cov['k'])} of {int(cov['n'])} "
-            f"times ({100 * cov['ci_low']:.1f}–{100 * cov['ci_high']:.1f} %, nominal "
+    text = (f"The feasibility rule (threshold {v['threshold']:.2f}, Šidák over 36 numbers) "
+            f"accepts a planted truth {int(cov['k'])} of {int(cov['n'])} times "
+            f"({100 * cov['ci_low']:.1f}–{100 * cov['ci_high']:.1f} %, nominal "
             f"{100 * pl['nominal']:.0f} %) and rules out {int(pw['k'])} of {int(pw['n'])} points "
-            f"{float(near):g} away in the unit cube (both at the verdict's discrepancy of "
-            f"{100 * pl['delta']:.0f} %)"
+            f"{float(near):g} away in the unit cube (at a {100 * pl['delta']:.0f} % "
+            "discrepancy)"
             + (": too loose to decide. " if pl["too_loose"] else ". ")
             + f"{passes} at a {100 * v['delta']:.0f} % model discrepancy (smallest maximum "
-            f"implausibility {at['min_max_implausibility']:.2f} against {v['threshold']:.2f})"
-            + (f", but the fit's {len(fit['restarts'])} restarts disagree (spread "
+            f"implausibility {at['min_max_implausibility']:.2f}), "
+            f"{v['by_delta'][widest]['count']} at {100 * float(widest):.0f} %"
+            + (f"; the fit's {len(fit['restarts'])} restarts disagree (spread "
                f"{spread['range']:.3f}), so the rest of the prior is not ruled out. "
                if not spread["agree"] else ". ")
             + f"Over the prior the paper's full ranking appears in {a9['k_runs']} of "

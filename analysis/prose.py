@@ -76,7 +76,7 @@ def _ends_sentence(paragraph: str, stop: int) -> bool:
         return True
     word = paragraph[:stop].split()[-1] if paragraph[:stop].split() else ""
     word = word.lstrip("(*_\"'“‘").lower()
-    return not (word in ABBREVIATIONS or len(word) <= 1)
+    return not (word in ABBREVIATIONS or (len(word) <= 1 and word.isalpha()))  # "%." ends one
 
 
 def sentences(text: str) -> list[str]:

@@ -409,37 +409,83 @@ def test_fair_paired_ratio_recovers_a_planted_ratio_and_counts_divergence_apart(
     p = paired(_held(1.2 * b, failed), _held(b))
     assert p["tracking_pairs"] == 58 and p["pairs"] == 60
     assert p["divergence"]["a_only"] == 2 and p["divergence"]["b_only"] == 0
-    assert p["tracking"]["a_only"] == 2 and p["tracking"]["by_cell"]["a_more"] == 2
+    assert p["tracking"]["a_only"] == 2 and p["tracking"]["by_seed"]["a_more"] == 2
+    assert p["common_cells"] == 4  # cells 0 and 2 have a failing seed: not in the ratio
     assert p["ratio"] == pytest.approx(1.2, rel=1e-12)  # no placeholder entered the mean
-    assert p["word"] == "higher"  # two cells of six: the sign test does not separate them
+    # two seeds of ten: the sign-flip test does not separate them (p = 2/4)
+    assert p["tracking"]["by_seed"]["p"] == 0.5 and p["word"] == "higher"
 
 
-def test_fair_metre_size_runs_fail_to_track_and_fail_by_cell():
+def test_fair_metre_size_runs_fail_to_track_and_fail_by_seed():
     """A run within the 10 m bound but a metre off the path fails to track (TRACKING_M): it is
-    not averaged into the ratio; failures on 6 of 6 cells separate the arms by the exact cell
-    sign test ("fails more", p = 1/32); the same count in one cell does not (the cell is the
-    unit, not the run), and an arm lower elsewhere but failing where the other tracks is
-    "mixed", not "lower"."""
+    not averaged into the ratio.  Failures in one cell at every one of ten seeds separate the
+    arms by the exact sign-flip test over the seeds ("fails more", p = 2/1024; the cell sign
+    test used before gave p = 1 there); one seed failing on every cell does not (a seed is one
+    replicate); an arm lower elsewhere but failing, not significantly, where the other tracks
+    is "mixed", not "lower"."""
     from analysis.calibration.verdicts import paired
     from analysis.regimes.stats import TRACKING_M
 
     b = np.full((10, 6), 0.05)
     a = 0.9 * b
-    a[0, :] = 1.0  # one seed a metre off on every cell: not diverged
+    a[:, 0] = 2 * TRACKING_M  # ten failures, all in one cell, not diverged
     p = paired(_held(a), _held(b))
-    assert p["divergence"]["a_only"] == 0 and p["tracking"]["a_only"] == 6
-    assert p["tracking"]["by_cell"] == {"cells": 6, "a_more": 6, "b_more": 0, "p": 0.03125}
-    assert p["word"] == "fails more" and p["tracking_pairs"] == 54
+    assert p["divergence"]["a_only"] == 0 and p["tracking"]["a_only"] == 10
+    assert p["tracking"]["by_seed"]["per_seed"] == [1] * 10
+    assert p["tracking"]["by_seed"]["p"] == pytest.approx(2 / 1024, rel=1e-12)
+    assert p["word"] == "fails more" and p["common_cells"] == 5
     assert p["ratio"] == pytest.approx(0.9, rel=1e-12)  # the metre-size runs are not in it
+    assert paired(_held(b), _held(a))["word"] == "fails less"
     a = 0.9 * b
-    a[:, 0] = 2 * TRACKING_M  # ten failures, all in one cell
+    a[0, :] = 1.0  # one seed a metre off on every cell
     p = paired(_held(a), _held(b))
-    assert p["tracking"]["a_only"] == 10 and p["tracking"]["by_cell"]["p"] == 1.0
+    assert p["tracking"]["by_seed"]["p"] == 1.0 and p["common_cells"] == 0
+    assert p["word"] == "undetermined"
+    a = 0.9 * b
+    a[:3, 0] = 2 * TRACKING_M  # three seeds fail in one cell: p = 2/8, not separated
+    p = paired(_held(a), _held(b))
+    assert p["tracking"]["by_seed"]["p"] == pytest.approx(0.25, rel=1e-12)
     # lower on the other five cells, but it fails where b tracks: neither order is claimed
     assert p["ratio"] == pytest.approx(0.9, rel=1e-12) and p["word"] == "mixed"
     b2 = b.copy()
-    b2[:, 0] = 2 * TRACKING_M  # b fails there too: the accuracy on the rest decides
+    b2[:3, 0] = 2 * TRACKING_M  # b fails there too: the accuracy on the rest decides
     assert paired(_held(a), _held(b2))["word"] == "lower"
+
+
+def test_seed_flip_test_is_the_exact_permutation_distribution():
+    """Oracle: the p-value by brute force over the sign assignments, written independently
+    (itertools), on random per-seed differences; and its level: under a null of exchangeable
+    arms it rejects at most 5 % of the time (planted null, 2,000 replicates)."""
+    from analysis.calibration.verdicts import seed_flip_test
+
+    rng = np.random.default_rng(11)
+    for _ in range(20):
+        fa, fb = rng.random((8, 6)) < 0.3, rng.random((8, 6)) < 0.3
+        d = (fa & ~fb).sum(axis=1) - (fb & ~fa).sum(axis=1)
+        t = abs(d.sum())
+        sums = [abs(sum(s * x for s, x in zip(signs, d, strict=True)))
+                for signs in itertools.product((1, -1), repeat=len(d))]  # fmt: skip
+        expected = np.mean([x >= t for x in sums]) if np.any(d) else 1.0
+        assert seed_flip_test(fa, fb)["p"] == pytest.approx(expected, rel=1e-12)
+    rejections = 0
+    for _ in range(2000):
+        f = rng.random((10, 6)) < 0.2  # the same failure law for both arms
+        g = rng.random((10, 6)) < 0.2
+        rejections += seed_flip_test(f, g)["p"] < 0.05
+    assert rejections <= 0.05 * 2000 + 3 * math.sqrt(0.05 * 0.95 * 2000)
+
+
+def test_fair_verdict_combines_pairings_by_direction():
+    """Four pairings that differ in their words but all say worse ("higher" or "fails more")
+    combine to "worse" (the audit found BSC's four 'fails more, fails more, higher, higher'
+    called restart-dependent); opposite directions stay restart-dependent."""
+    from analysis.calibration.verdicts import combined
+
+    assert combined(["fails more", "fails more", "higher", "higher"]) == "worse"
+    assert combined(["lower", "fails less", "lower", "lower"]) == "better"
+    assert combined(["higher"] * 4) == "higher"
+    assert combined(["higher", "lower", "higher", "higher"]) == "restart-dependent"
+    assert combined(["higher", "mixed", "higher", "higher"]) == "restart-dependent"
 
 
 def test_fair_one_seed_is_undetermined_not_a_tie():
@@ -578,8 +624,8 @@ def _rerun_planted(record: dict, t: int) -> None:
     u = np.array(pl["truths_u"][t])
     _, truth = run_task(space.task(u, (rule.TRUTH_SEED0 + t,)))
     _, runs = run_task(space.task(u, tuple(pl["rule_seeds"])))
-    z = rule.printed_round(rule._nums(truth)[0])
-    got = float(rule.capped(rule.implausibility(rule._nums(runs), z, pl["delta"])).max())
+    z = rule.printed_round(rule.rmse_numbers(truth)[0])
+    got = float(rule.capped(rule.implausibility(rule.rmse_numbers(runs), z, pl["delta"])).max())
     assert got == pytest.approx(pl["max_implausibility_truth"][t], rel=1e-9)
 
 
@@ -900,3 +946,27 @@ def test_power_over_continuous_moves_counts_the_moves_that_keep_discrete_levels(
         sel = [t for t in range(pl["n_truths"]) if pl["discrete_kept"][t][j]]
         assert cont["n"] == len(sel)
         assert cont["k"] == sum(pl["max_implausibility_away"][t][j] > pl["threshold"] for t in sel)
+
+
+def test_fair_answer_names_every_verdict_against_a_best_not_shown_best():
+    """The candidate best (by failures, then its own mean) can lose a paired comparison: the
+    answer names that arm with its verdict, not an empty clause, and says why the candidate is
+    the candidate from the record (its failures, and the arms that share the count)."""
+    from analysis.calibration.report import _who
+
+    def held(k):
+        return {"held_out": {"tracking_failure": {"diverged": k, "n": 150}}}
+
+    f = {"best": "nmpc@raw", "best_determined": False,
+         "ranking": ["nmpc@raw", "adaptive-pid@raw", "backstepping@raw", "adaptive-nn@raw"],
+         "against_best": {"adaptive-pid@raw": {"verdict": "worse"},
+                          "backstepping@raw": {"verdict": "lower"},
+                          "adaptive-nn@raw": {"verdict": "restart-dependent"}}}  # fmt: skip
+    arms = {"nmpc@raw": held(0), "adaptive-pid@raw": held(0), "backstepping@raw": held(3),
+            "adaptive-nn@raw": held(9)}
+    text = _who(f, "here", arms)
+    assert "BSC are lower than it at all four pairings" in text
+    assert "against DA-NN the verdict depends on which restart is run" in text
+    assert ("NMPC is the candidate: it fails to track on 0/150 held-out runs, the fewest "
+            "(as APID)") in text
+    assert "but ." not in text and text.endswith(".")

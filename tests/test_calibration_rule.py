@@ -80,24 +80,40 @@ def test_a_model_discrepancy_widens_the_rule_and_costs_power():
     assert rule.implausibility(runs, z, 0.1).max() <= c
 
 
-def test_a_diverged_seed_is_no_rmse():
-    """A number at which any seed diverged, while the target's is finite, is ruled out (the
-    rule does not judge the finite seeds only); the other numbers are unchanged; a diverged
-    target is matched only by a candidate that diverges there too."""
+def test_divergence_is_a_binomial_count_judged_with_the_finite_runs():
+    """Closed forms: with k of K = 10 runs diverged and a finite target, the number's divergence
+    implausibility is the normal score of (K - k + 1) / (K + 2) (the rule of succession), and its
+    RMSE implausibility is the rule's over the K - k finite runs alone (K - k in place of K); the
+    larger of the two counts.  No count alone rules a number out at K = 10 (1/12 > the Sidak
+    level); a diverged target is judged by (k + 1) / (K + 2) alone; the other numbers do not
+    move."""
+    from scipy import stats
+
     from analysis.calibration import rule
 
     rng = np.random.default_rng(3)
     nums = prior.PAPER * np.exp(rng.normal(0.0, 0.1, (10, 36)))
     base = rule.implausibility(nums, prior.PAPER)
     nums2 = nums.copy()
-    nums2[0, 0] = prior.DIVERGED_RMSE  # one of ten seeds diverged
+    nums2[:3, 0] = prior.DIVERGED_RMSE  # three of ten seeds diverged
     got = rule.implausibility(nums2, prior.PAPER)
     assert np.array_equal(got[1:], base[1:])
-    assert got[0] == np.inf and base[0] < rule.threshold(10)
+    finite_only = rule.implausibility(nums[3:], prior.PAPER)[0]  # the 7 finite runs as a K = 7
+    assert base[0] < rule.threshold(10) and got[0] != base[0]
+    c10, c7 = rule.threshold(10), rule.threshold(7)
+    assert c10 == c7  # the Welch threshold does not depend on K (its per-number ones do)
+    div = stats.norm.isf((10 - 3 + 1) / 12 / 2)
+    assert got[0] == pytest.approx(max(finite_only, div), rel=1e-12)
+    nums3 = nums.copy()
+    nums3[:, 4] = prior.DIVERGED_RMSE  # every run diverged: the divergence score alone
+    assert rule.implausibility(nums3, prior.PAPER)[4] == pytest.approx(stats.norm.isf(1 / 24))
+    assert stats.norm.isf(1 / 24) < c10  # not ruled out by the count alone
     z = prior.PAPER.copy()
-    z[2] = prior.DIVERGED_RMSE
-    assert rule.implausibility(nums, z)[2] == np.inf
-    nums2[0, 2] = prior.DIVERGED_RMSE
+    z[2] = prior.DIVERGED_RMSE  # a diverged target: (k + 1) / (K + 2)
+    assert rule.implausibility(nums, z)[2] == pytest.approx(stats.norm.isf(1 / 24))
+    nums2[:3, 2] = prior.DIVERGED_RMSE
+    assert rule.implausibility(nums2, z)[2] == pytest.approx(stats.norm.isf(4 / 12 / 2))
+    nums2[:, 2] = prior.DIVERGED_RMSE  # every run as the target: no evidence against it
     assert rule.implausibility(nums2, z)[2] == 0.0
 
 
@@ -218,11 +234,15 @@ def test_the_rule_is_nominal_where_the_discrepancy_dominates_and_t_is_not():
             assert acc["t"] / n > 0.99, acc
 
 
-def test_a_diverged_run_is_implausible_by_the_rule_and_no_placeholder_enters_the_fit():
-    """A candidate matching the paper closely at 9 of 10 seeds but diverging at one is ruled
-    out (the same runs without the divergence are not); the fit's objective averages no 10 m
-    placeholder: it is the rms log ratio of the finite seeds' means plus the stated penalty
-    times the diverged share, and without divergence exactly ``prior.discrepancy``'s."""
+def test_a_diverged_run_is_judged_as_a_count_and_no_placeholder_enters_the_fit():
+    """A candidate matching the paper closely at 9 of 10 seeds but diverging at one is not
+    ruled out for it (the truth itself can diverge at times): the three numbers of the diverged
+    run are judged on the 9 finite runs and on the count (1 of 10); the others do not move.  The
+    fit's objective averages no 10 m placeholder: it is the rms log ratio of the finite seeds'
+    means plus the stated penalty times the diverged share, and without divergence exactly
+    ``prior.discrepancy``'s."""
+    from scipy import stats
+
     from analysis.calibration import fit as fitmod
     from analysis.calibration import rule
 
@@ -233,9 +253,12 @@ def test_a_diverged_run_is_implausible_by_the_rule_and_no_placeholder_enters_the
     bad = nums.copy()
     bad[4, 9:12] = prior.DIVERGED_RMSE  # one run (3 numbers) of one seed diverged
     got = rule.judge(bad, 10)
+    finite = np.delete(nums, 4, axis=0)
     for key, v in got["by_delta"].items():
-        assert not v["not_ruled_out"], key
-        assert v["implausibility"][9:12] == [rule.CAP] * 3, key
+        assert v["not_ruled_out"], key
+        want = np.maximum(rule.implausibility(finite, prior.PAPER, float(key))[9:12],
+                          stats.norm.isf(10 / 12 / 2))  # fmt: skip
+        assert v["implausibility"][9:12] == pytest.approx(want, rel=1e-12), key
         rest = [i for i in range(36) if not 9 <= i < 12]
         assert [v["implausibility"][i] for i in rest] == [
             ok["by_delta"][key]["implausibility"][i] for i in rest], key

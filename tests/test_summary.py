@@ -30,6 +30,7 @@ needs_paper = pytest.mark.skipif(not (PAPER / "results" / "reproduction.json").e
     ("See eq. 22 and e.g. the Jacobian. Next one.", ["See eq. 22 and e.g. the Jacobian.",
                                                      "Next one."]),
     ("Silaa et al. 2024 wrote it. A 0.5 m step.", ["Silaa et al. 2024 wrote it.", "A 0.5 m step."]),
+    ("Initials J. R. Doe. At 95 %. Then", ["Initials J. R. Doe.", "At 95 %.", "Then"]),
     ("Is it? **Yes.** (It is.)", ["Is it?", "**Yes.**", "(It is.)"]),
     ("ends in lower case. not a new sentence", ["ends in lower case. not a new sentence"]),
     ("| a | b. C |\n|---|---|\n# Head. Line\n![x. Y](f.png)\n- item one. Item two",

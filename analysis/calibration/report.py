@@ -50,20 +50,32 @@ def _answer(r: dict) -> list[str]:
         "Over the moves that keep every discrete setting at the truth's level it rules out "
         + ", ".join(f"{d}: {x['k']:.0f} of {x['n']:.0f}"
                     for d, x in pl["power_continuous_only"].items()) + ".",
+        "Around the truths it accepts, it rules out "
+        + ", ".join(f"{d}: {x['k']:.0f} of {x['n']:.0f}"
+                    for d, x in pl["power_given_accepted"].items()) + ".",
     ]
     earlier, dkey = pl["by_delta_earlier_threshold"], f"{pl['delta']:g}"
+    looser = [d for d in sorted(ver["by_delta"], key=float)
+              if float(d) > ver["delta"] and ver["by_delta"][d]["count"]]  # fmt: skip
     derive = [
         f"The threshold {pl['threshold']:.2f} is the normal Sidak quantile for 36 numbers at "
         f"{100 * pl['nominal']:.0f} %.",
+        *([f"Without a model discrepancy (a planted truth has none) it accepts "
+           f"{_pct(pl['by_delta']['0']['coverage'])}: the statistical model's own calibration; "
+           f"the stated {100 * pl['delta']:.0f} % is what brings it to "
+           f"{100 * cov['p']:.0f} %."] if "0" in pl.get("by_delta", {}) else []),
         "Each number is judged against Student t at the Welch-Satterthwaite degrees of freedom "
         "of its variance, since only the seed spread is estimated and the rounding and the "
         "discrepancy are stated.",
         f"The earlier threshold, t with {r['rule']['K'] - 1} degrees of freedom for every number "
         f"({earlier['threshold']:.2f}), rules out "
         f"{_pct(earlier[dkey]['power'][far])} at distance {far}.",
-        "A number at which any of the candidate's runs diverged is ruled out, as the paper "
-        f"prints every number; this costs {pl['truths_ruled_out_by_divergence']} of "
-        f"{cov['n']:.0f} planted truths.",
+        "Divergence is judged as a binomial count: the chance, by the rule of succession, that "
+        "one more run ends as the paper's did (finite), as a normal score beside the RMSE "
+        f"judged over the finite runs; with {r['rule']['K']} seeds no count alone rules a number "
+        f"out. {pl['truths_with_diverged_runs']['n']} of {cov['n']:.0f} planted truths had a "
+        f"diverged run among their {r['rule']['K']}; the rule accepts "
+        f"{pl['truths_with_diverged_runs']['accepted']} of them.",
         f"The verdict judges its candidates at seeds {_span(ver['seeds'])}, none of which "
         f"selected them (those were {_span(ver['selection_seeds'])}).",
     ]
@@ -73,6 +85,11 @@ def _answer(r: dict) -> list[str]:
            if v["count"] else f"None of the {ver['n_candidates']} candidates examined is")
         + f" (model discrepancy {100 * ver['delta']:.0f} %; smallest max implausibility "
         f"{v['min_max_implausibility']:.1f}).",
+        *([f"At a model discrepancy of {' and '.join(f'{100 * float(d):.0f} %' for d in looser)}"
+           " some are not ruled out "
+           f"({', '.join(str(ver['by_delta'][d]['count']) for d in looser)} of "
+           f"{ver['n_candidates']}): whether a setting reproduces the tables depends on the "
+           "discrepancy one grants (the table below)."] if looser else []),
         f"Scope: {ver['scope']}.",
         "The earlier '0 of 4,096 feasible' is retracted.",
     ]
@@ -93,9 +110,10 @@ def _answer(r: dict) -> list[str]:
         f"**The paper's ranking over the prior.** All nine orders as printed: "
         f"{_pct(po['all_nine'])}; IAPID-NN-DEKF lowest on all nine: "
         f"{_pct(po['iapid_first_all'])} (Clopper-Pearson over {po['n_points']} points).",
-        "Settings that decide the discrepancy most (PAWN's first tied group): "
-        + (", ".join(top) if top else "none separable") + ".",
-        *(["They are tied with an inert dummy setting, so not separated."] if inert else []),
+        *(["PAWN separates no setting from an inert dummy setting on the discrepancy: none is "
+           "shown to decide it."] if inert or not top else
+          ["Settings that decide the discrepancy most (PAWN's first tied group, above an inert "
+           "dummy setting): " + ", ".join(top) + "."]),
     ]
     deltas = sorted(set(pl.get("by_delta", {})) | set(ver["by_delta"]), key=float)
     rows = []
@@ -209,30 +227,86 @@ def _names(names: list[str]) -> str:
     return ", ".join(_arm(n) for n in names)
 
 
-def _who(f: dict, where: str) -> str:
-    """The answer's sentence on who is best on the cells ``where`` names."""
-    best, dep, tie = f["best"], f["restart_dependent"], f["ties_with_best"]
+#: How the answer names the arms of each verdict against a best not shown best.
+_AGAINST = {"tie": "{} tie with it",
+            "equivalent": "{} are equivalent to it within 5 %",
+            "restart-dependent": "against {} the verdict depends on which restart is run",
+            "mixed": "{} track more accurately where both track but fail where it does not "
+                     "(mixed)",
+            "undetermined": "against {} it is undetermined",
+            "lower": "{} are lower than it at all four pairings",
+            "fails less": "{} fail less than it at all four pairings",
+            "better": "{} are lower or fail less than it at all four pairings"}  # fmt: skip
+
+
+def _candidate(f: dict, arms: dict) -> str:
+    """Why the candidate best is the candidate, from the record: its failures (and the arms
+    that share that count), then its mean log RMSE over its own tracking runs."""
+    best = f["best"]
+    d = arms[best]["held_out"]["tracking_failure"]
+    same = [n for n in f["ranking"][1:]
+            if arms[n]["held_out"]["tracking_failure"]["diverged"] == d["diverged"]]
+    fewest = f"{d['diverged']}/{d['n']} held-out runs, the fewest" + (
+        f" (as {_names(same)})" if same else "")
+    tail = (", and among those the lowest mean log RMSE over its own tracking runs"
+            if same else "")
+    return f"{_arm(best)} is the candidate: it fails to track on {fewest}{tail}"
+
+
+def _who(f: dict, where: str, arms: dict) -> str:
+    """The answer's sentence on who is best on the cells ``where`` names (``arms``: the arms'
+    held-out summaries on those cells)."""
+    best = f["best"]
     if f["best_determined"]:
         return (f"Tuned alike, {_arm(best)} tracks best {where}: every other arm is higher "
                 "or fails more against it at all four pairings of the two arms' restarts.")
-    parts = ([f"{_names(tie)} tie with it"] if tie else []) + (
-        [f"against {_names(dep)} the verdict depends on which restart is run"] if dep else [])
-    for w, say in (("mixed", "{} track more accurately where both track but fail where it "
-                               "does not (mixed)"),
-                   ("undetermined", "against {} it is undetermined")):
-        ns = [n for n, v in f["against_best"].items() if v["verdict"] == w]
-        parts += [say.format(_names(ns))] if ns else []
-    return (f"Tuned alike, no arm is shown best {where}. {_arm(best)} has the fewest failures "
-            f"and the lowest RMSE at its best restart, but {'; '.join(parts)}.")
+    by: dict[str, list[str]] = {}
+    for n, v in f["against_best"].items():
+        by.setdefault(v["verdict"], []).append(n)
+    parts = [say.format(_names(by[w])) for w, say in _AGAINST.items() if w in by]
+    return (f"Tuned alike, no arm is shown best {where}. {_candidate(f, arms)}; but "
+            f"{'; '.join(parts)}.")
+
+
+def _by_plant(s: dict, cells: list[str]) -> str:
+    """An arm's tracking failures per plant (the cells ``scenario@plant``), the plants with
+    any."""
+    per: dict[str, int] = {}
+    for c, k in zip(cells, s["per_cell_failures"], strict=True):
+        per[c.split("@")[1]] = per.get(c.split("@")[1], 0) + k
+    return ", ".join(f"{p} {k}" for p, k in per.items() if k)
 
 
 def _order(f: dict) -> str:
     """The candidate ranking with each consecutive verdict: ``A < B ? C``."""
-    sym = {"higher": "<", "fails more": "<", "tie": "~", "equivalent": "~"}
+    sym = {"higher": "<", "fails more": "<", "worse": "<", "tie": "~", "equivalent": "~"}
     out = _arm(f["ranking"][0])
     for o in f["order"]:
         out += f" {sym.get(o['verdict'], '?')} {_arm(o['pair'][1])}"
     return out
+
+
+def _swap(f: dict) -> str:
+    """The settings swap of the two laws with the same free settings."""
+    sw = f["swap"]
+    x, y = (_arm(n) for n in sw["arms"])
+
+    def said(k: str) -> str:
+        v = sw["comparisons"][k]
+        return f"{_ratio(v)} ({v['word']}, {v['common_cells']} cells)"
+
+    return (f"The two laws with the same free settings, {x} and {y}, were also run with each "
+            f"other's best settings. {x} over {y}: {said('as_tuned')} as tuned, "
+            f"{said('both_at_x')} with both at {x}'s settings, {said('both_at_y')} with both "
+            f"at {y}'s. Each law with the other's settings over itself with its own: {x} "
+            f"{said('x_swapped')}, {y} {said('y_swapped')}.")
+
+
+def _fixed(f: dict) -> str:
+    """Each arm's numeric settings the tuning left at their defaults (the record's)."""
+    arms = f["arms"]
+    return "; ".join(f"{_arm(n)}: {', '.join(arms[n]['fixed'])}" for n in f["ranking"]
+                     if arms[n]["fixed"]) or "none"  # fmt: skip
 
 
 def _answer_fair(r: dict) -> list[str]:
@@ -248,47 +322,59 @@ def _answer_fair(r: dict) -> list[str]:
              fmt(arms[n]["other_held_out"]["median_rmse"]),
              fmt(arms[n]["default_held_out"]["median_rmse"]),
              "—" if n == best else _ratio(vs[n]["tuned"]),
+             "—" if n == best else str(vs[n]["tuned"]["common_cells"]),
              "—" if n == best else ", ".join(vs[n]["pairings"].values()),
              "candidate best" if n == best else vs[n]["verdict"]]
             for n in [*f["ranking"], pa["arm"]]]  # fmt: skip
-    where = (f"on the paper's three scenarios over {len(ho['plants'])} held-out kinematic "
+    where = (f"on the paper's three scenarios over {len(ho['plants'])} held-out simulated "
              "plants")
     worse = [n for n in failing
              if arms[n]["default_held_out"]["tracking_failure"]["diverged"] == 0]
-    lines = [_who(f, where),
-             (f"Held out, {_names(failing)} fail to track on some runs (diverged, or RMSE "
-              f"after the transient above {ho['tracking_m']:g} m)." if failing else
+    per_plant = "; ".join(f"{_arm(n)} {_fails(arms[n]['held_out'])} "
+                          f"({_by_plant(arms[n]['held_out'], ho['cells'])})" for n in failing)
+    lines = [_who(f, where, arms),
+             (f"Held out, arms fail to track (diverged, or RMSE after the transient above "
+              f"{ho['tracking_m']:g} m) on these runs, by plant: {per_plant}." if failing else
               "No arm fails to track held out."),
              *([f"At their defaults {_names(worse)} track every held-out run; tuned "
                 "on the training plants, they do not."] if worse else []),
              f"The paper's set-up, {_arm(pa['arm'])}, is '{pa['against_raw']['verdict']}' "
              f"against the same law on the measured pose and '{pa['against_best']['verdict']}' "
-             f"against {_arm(best)}."]
+             f"against {_arm(best)}.", _swap(f)]
     ap = f.get("apart")
     if ap:
-        lines.append(_who(ap, f"on the MuJoCo robot (compared apart: {', '.join(ap['plants'])})"))
+        held = {n: {"held_out": s} for n, s in ap["held_out"].items()}
+        fails = ", ".join(f"{_arm(n)} {_fails(ap['held_out'][n])}" for n in ap["ranking"])
+        lines.append(_who(ap, "on the MuJoCo robot (compared apart: "
+                              f"{', '.join(ap['plants'])})", held)
+                     + f" Failures there: {fails}.")
     return ["\n".join([
         "**Who wins under fair tuning?** " + " ".join(lines), "",
         f"Candidate order (<: told apart at all four restart pairings, ~: tied, ?: "
         f"restart-dependent, mixed or undetermined): {_order(f)}.", "",
         "Every arm acts on the measured pose, so the arms differ only in the law. Each arm's "
-        f"free settings, the adaptation's own included, were tuned by the shared stage "
-        f"(analysis/tuning.py) with {b['per_setting']} evaluations per setting per restart and "
-        f"{b['restarts']} CMA-ES restarts. Training used the regime study's "
-        f"{len(b['training'])} trajectory-plant pairs at seeds {_span(b['train_seeds'])}.",
+        f"free settings were tuned by the shared stage (analysis/tuning.py) with "
+        f"{b['per_setting']} evaluations per setting per restart and {b['restarts']} CMA-ES "
+        f"restarts. Left at their defaults (not free): {_fixed(f)}. Training used the regime "
+        "study's "
+        f"{len(b['training'])} trajectory-plant pairs at seeds {_span(b['train_seeds'])}: "
+        "other members of the held-out trajectories' families, and two of the held-out "
+        "mechanisms at half their magnitude (lag-delay, slip).",
         f"Held out: the {len(ho['cells'])} cells ({', '.join(ho['plants'])}; the skid outward) "
         f"at seeds {_span(b['test_seeds'])}, each arm at its best restart, its runner-up and "
-        "its defaults. Failing to track is its own endpoint, compared by an exact sign test "
-        "over the cells.",
+        "its defaults. Failing to track is its own endpoint, compared seed by seed: the cells "
+        "where one arm fails and the other tracks, minus the reverse, tested by an exact "
+        "sign-flip test over the seeds.",
         "A ratio is the geometric mean over seeds of an arm's RMSE over the candidate best's, "
-        "on the cells where both track, with its 95 % t interval. The four words are the "
-        "verdicts at the pairings best/best, best/runner-up, runner-up/best and "
-        "runner-up/runner-up.",
+        "on the cells where both track at every seed (their number beside it), with its 95 % "
+        "t interval. The four words are the verdicts at the pairings best/best, "
+        "best/runner-up, runner-up/best and runner-up/runner-up; 'worse' when they differ but "
+        "each says higher or fails more.",
         "", *common.md_table(["arm", "free settings", "evaluations", "restarts agree",
                               "optimum on an edge", "fail to track", "(runner-up)",
                               "median RMSE [m]", "(runner-up)", "at defaults [m]",
-                              "ratio to the candidate best [95 % CI]", "at the four pairings",
-                              "verdict"], rows)])]  # fmt: skip
+                              "ratio to the candidate best [95 % CI]", "cells",
+                              "at the four pairings", "verdict"], rows)])]  # fmt: skip
 
 
 def _vol(x: float) -> str:
@@ -319,8 +405,11 @@ def _answer_sequential(r: dict) -> list[str]:
            "rests on the direct rule."),
         f"For the paper's tables wave 0 keeps {_vol(pap['retained'][0])} of the prior's volume"
         + (f" and wave {n_w} keeps {_vol(kept)}" if n_w else "")
-        + (f"; the least implausible point scores {pap['least_implausibility']:.2f} against "
-           f"the threshold {seq['threshold']:.2f}." if "least_implausibility" in pap else
+        + (f"; the least implausible point scores {pap['least_implausibility']:.2f} on the "
+           f"emulator against the threshold {seq['threshold']:.2f}, and "
+           f"{pap['least_direct']['max_implausibility']:.2f} when run at seeds "
+           f"{_span(pap['least_direct']['seeds'])} and judged by the rule itself."
+           if "least_implausibility" in pap else
            ": no sampled point is left, so none is plausible."),
         f"For a planted truth wave 0 keeps a median {_vol(w0['retained_volume_median'])} of the "
         "volume.",

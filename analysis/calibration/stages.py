@@ -86,12 +86,13 @@ class Level:
 #: training (so the two studies share one tuning), ten held-out seeds.
 _FAIR = Budget(per_setting=30, train_seeds=(100, 101), test_seeds=tuple(range(200, 210)))
 FULL = Level("full", (0, 1), morris_r=20, design_m=11, rule_seeds=tuple(range(10)),
-             n_truths=100, verdict_top=20, cma_restarts=6, cma_popsize=12, cma_maxfevals=240,
+             n_truths=100, verdict_top=20, cma_restarts=6, cma_popsize=12, cma_maxfevals=1000,
              fair=_FAIR,
              verdict_seeds=tuple(range(2, 12)),
-             waves=Waves(waves=2, per_wave=32, mc=10_000, recovery_truths=30))  # fmt: skip
+             waves=Waves(waves=2, per_wave=32, mc=10_000, recovery_truths=30,
+                         train_points=1024))  # fmt: skip
 MEDIUM = Level("medium", (0, 1), morris_r=8, design_m=7, rule_seeds=tuple(range(10)),
-               n_truths=100, verdict_top=5, cma_restarts=5, cma_popsize=8, cma_maxfevals=32,
+               n_truths=100, verdict_top=5, cma_restarts=5, cma_popsize=8, cma_maxfevals=1000,
                fair=_FAIR,
                verdict_seeds=tuple(range(2, 12)),
                waves=Waves(waves=2, per_wave=24, mc=4000, recovery_truths=20))  # fmt: skip

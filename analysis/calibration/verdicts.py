@@ -6,24 +6,31 @@ re-renders the record from the store).
 - **Endpoints**, each its own: *divergence* (the 10 m bound) and *tracking failure*
   (diverged, or the RMSE after the transient above the regime study's ``TRACKING_M``: a run
   that stays within 10 m but misses the path by metres is not a tracking result), per arm
-  with Clopper-Pearson intervals; paired, exact McNemar over the (cell, seed) pairs beside an
-  exact sign test over the cells of the two arms' failure counts (a cell's failures cluster:
-  the cell is the unit there).  *Accuracy*: the after-transient position RMSE on the pairs
-  where both arms track, per seed the mean over its both-tracking cells of
-  ``log r_X - log r_Y`` and its 95 % t interval over the seeds (common random numbers tie
-  every run of a seed).
-- **Verdict words** (:func:`word`): "fails more" / "fails less" when the cell sign test
-  separates the two at 5 %.  Else from the accuracy interval: "lower" / "higher" when it
-  excludes 0, "equivalent" inside ``±log 1.05``, "tie" when it reaches 0, "undetermined" with
-  fewer than two seeds that have a both-tracking cell; but **"mixed"** when the arm that
-  fails on more cells (not significantly) is the lower, tied or equivalent one: no word claims
-  an arm as good as or better than one that tracks where it does not.
+  with Clopper-Pearson intervals, and per held-out plant.  Paired: for each seed (common random
+  numbers tie every run of a seed; the seeds are the independent replicates, the cells are
+  fixed), the number of cells where a fails and b tracks minus the reverse; an exact sign-flip
+  test over the seeds of their sum (:func:`seed_flip_test`: every assignment of signs
+  enumerated).  A difference confined to a few cells is detected when it repeats over the
+  seeds (a sign test over the cells, used before, could not reach 5 % with five or fewer cells
+  differing, whatever the seeds said).  Exact McNemar over the (cell, seed) pairs is kept
+  beside it.  *Accuracy*: the after-transient position RMSE on the cells where both arms
+  track at every seed (one common set of cells, so every seed's mean is over the same cells),
+  per seed the mean over those cells of ``log r_X - log r_Y`` and its 95 % t interval over the
+  seeds, with the number of cells beside it.
+- **Verdict words** (:func:`word`): "fails more" / "fails less" when the seed test separates
+  the two at 5 %.  Else from the accuracy interval: "lower" / "higher" when it excludes 0,
+  "equivalent" inside ``±log 1.05``, "tie" when it reaches 0, "undetermined" with fewer than
+  two seeds or no common cell; but **"mixed"** when the arm that fails more often (not
+  significantly) is the lower, tied or equivalent one: no word claims an arm as good as or
+  better than one that tracks where it does not.
 - **Restarts**: a comparison is made at the four pairings of the two arms' best and runner-up
-  tuning restarts (:data:`PAIRINGS`); where they do not all give the same word it is
+  tuning restarts (:data:`PAIRINGS`).  Where all four give the same word, that is the verdict;
+  where they differ but all say the same direction, the verdict is **"worse"** (each "higher"
+  or "fails more") or **"better"** (each "lower" or "fails less"); otherwise it is
   **restart-dependent**, and no order is claimed (the tuning, not the law, decides it).
 - **Best**: the candidate with the fewest tracking failures, then the lowest mean log RMSE
   over its tracking runs; it is *the* best only if every other arm's verdict against it is
-  "higher" or "fails more" at all four pairings.
+  "higher", "fails more" or "worse" (worse at all four pairings).
 """
 
 from __future__ import annotations
@@ -38,8 +45,9 @@ from analysis.calibration.store import METRICS
 from analysis.regimes import stats as rstats
 from analysis.regimes.stats import divergence, mcnemar
 
-__all__ = ["EQUIV", "RESTARTS", "PAIRINGS", "summary", "paired", "word", "across", "score",
-           "compare", "RULE"]  # fmt: skip
+__all__ = ["EQUIV", "RESTARTS", "PAIRINGS", "WORSE", "BETTER", "summary", "seed_flip_test",
+           "paired", "word", "across", "combined", "score", "compare", "fixed_settings",
+           "arm_entry", "assemble", "swap", "RULE"]  # fmt: skip
 
 #: Relative equivalence margin of a paired log ratio: ±5 %.
 EQUIV = math.log(1.05)
@@ -48,6 +56,9 @@ RESTARTS = ("tuned", "tuned-other")
 #: The four restart pairings of a comparison (a's level, b's level).
 PAIRINGS = tuple(itertools.product(RESTARTS, RESTARTS))
 _TAIL = METRICS.index("tail_position")
+#: The words that say the first arm is worse / better than the second (a direction).
+WORSE = ("higher", "fails more")
+BETTER = ("lower", "fails less")
 
 
 def _runs(arr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -73,34 +84,47 @@ def summary(arr: np.ndarray) -> dict:
             "per_cell_failures": [int(x) for x in failed.sum(axis=0)]}  # fmt: skip
 
 
-def _cell_sign_test(fa: np.ndarray, fb: np.ndarray) -> dict:
-    """Exact sign test over the cells (columns) of their failure counts: ``a_more`` cells
-    where a fails on more seeds than b, ``b_more`` the reverse, two-sided p (1 with none)."""
-    from scipy.stats import binomtest
-
-    d = fa.sum(axis=0).astype(int) - fb.sum(axis=0).astype(int)
-    k, n = int(np.sum(d > 0)), int(np.sum(d != 0))
-    p = 1.0 if n == 0 else float(binomtest(k, n).pvalue)
-    return {"cells": int(d.size), "a_more": k, "b_more": n - k, "p": p}
+def seed_flip_test(fa: np.ndarray, fb: np.ndarray) -> dict:
+    """Paired failures of arms a and b, ``fa``, ``fb`` (seeds, cells) booleans: per seed the
+    cells where a fails and b tracks minus the reverse (``per_seed``), their sum, and the exact
+    two-sided sign-flip p-value of the sum over the seeds (every one of the ``2^S`` sign
+    assignments of the seeds' differences; valid because, with common random numbers, swapping
+    the arms' labels within a seed leaves its runs' joint law unchanged under the null)."""
+    d = ((fa & ~fb).sum(axis=1) - (fb & ~fa).sum(axis=1)).astype(int)
+    total = int(d.sum())
+    nz = d[d != 0]
+    if nz.size == 0:
+        p = 1.0
+    else:
+        if nz.size > 20:
+            raise ValueError(f"seed_flip_test enumerates 2^S sign assignments: {nz.size} seeds "
+                             "with a difference is too many")
+        signs = 1 - 2 * ((np.arange(2**nz.size)[:, None] >> np.arange(nz.size)) & 1)
+        sums = np.abs(signs @ nz)
+        p = float(np.mean(sums >= abs(total)))
+    return {"seeds": int(d.size), "per_seed": [int(x) for x in d], "a_more": total,
+            "a_only": int((fa & ~fb).sum()), "b_only": int((fb & ~fa).sum()), "p": p}
 
 
 def paired(arr_a: np.ndarray, arr_b: np.ndarray, columns: np.ndarray | None = None) -> dict:
     """Arm a against arm b on the same held-out runs (see the module), on the cells
-    ``columns`` (a boolean mask; None: all): divergence and tracking failure (McNemar over
-    the pairs, the sign test over the cells), the seeds' mean log ratio over both-tracking
-    cells with its 95 % t interval, tie, equivalence and the verdict :func:`word`."""
+    ``columns`` (a boolean mask; None: all): divergence (McNemar), tracking failure (the seed
+    sign-flip test, McNemar beside it), the seeds' mean log ratio over the cells where both
+    track at every seed with its 95 % t interval, tie, equivalence and the verdict
+    :func:`word`."""
     from scipy import stats
 
     if columns is not None:
         arr_a, arr_b = arr_a[:, columns], arr_b[:, columns]
     ra, da, fa = _runs(arr_a)
     rb, db, fb = _runs(arr_b)
-    both = ~fa & ~fb
-    d = np.array([np.mean(np.log(ra[s, both[s]] / rb[s, both[s]]))
-                  for s in range(ra.shape[0]) if both[s].any()])  # fmt: skip
+    common = (~fa & ~fb).all(axis=0)  # the cells where both track at every seed
+    d = (np.mean(np.log(ra[:, common] / rb[:, common]), axis=1) if common.any()
+         else np.empty(0))  # fmt: skip
     out = {"divergence": mcnemar(da.ravel(), db.ravel()),
-           "tracking": {**mcnemar(fa.ravel(), fb.ravel()), "by_cell": _cell_sign_test(fa, fb)},
-           "tracking_pairs": int(both.sum()), "pairs": int(both.size), "seeds": int(d.size)}
+           "tracking": {**mcnemar(fa.ravel(), fb.ravel()), "by_seed": seed_flip_test(fa, fb)},
+           "tracking_pairs": int((~fa & ~fb).sum()), "pairs": int(fa.size),
+           "common_cells": int(common.sum()), "cells": int(common.size), "seeds": int(d.size)}
     if d.size < 2:  # no interval: the accuracy is undetermined (neither a tie nor a win)
         out.update({"mean_log_ratio": float(d.mean()) if d.size else None, "ci": None,
                     "ratio": None, "ratio_ci": None, "tie": False, "equivalent": False})
@@ -119,9 +143,9 @@ def paired(arr_a: np.ndarray, arr_b: np.ndarray, columns: np.ndarray | None = No
 def word(p: Mapping) -> str:
     """The verdict of a paired comparison (see the module): failure first, then accuracy,
     "mixed" where the two point opposite ways."""
-    cell = p["tracking"]["by_cell"]
-    if cell["p"] < 0.05:
-        return "fails more" if cell["a_more"] > cell["b_more"] else "fails less"
+    fail = p["tracking"]["by_seed"]
+    if fail["p"] < 0.05:
+        return "fails more" if fail["a_more"] > 0 else "fails less"
     if p["ci"] is None:
         return "undetermined"
     if p["equivalent"]:
@@ -130,7 +154,7 @@ def word(p: Mapping) -> str:
         acc = "tie"
     else:
         acc = "higher" if p["ci"][0] > 0 else "lower"
-    more = np.sign(cell["a_more"] - cell["b_more"])
+    more = np.sign(fail["a_more"])
     if (more > 0 and acc != "higher") or (more < 0 and acc != "lower"):
         return "mixed"
     return acc
@@ -143,9 +167,21 @@ def across(runs_a: Mapping[str, np.ndarray], runs_b: Mapping[str, np.ndarray],
     the four words and the verdict, their common word or "restart-dependent"."""
     by = {f"{la} / {lb}": paired(runs_a[la], runs_b[lb], columns) for la, lb in PAIRINGS}
     words = {k: v["word"] for k, v in by.items()}
-    common = set(words.values())
     return {"tuned": by.pop("tuned / tuned"), "by": by, "pairings": words,
-            "verdict": common.pop() if len(common) == 1 else "restart-dependent"}
+            "verdict": combined(list(words.values()))}
+
+
+def combined(words: list[str]) -> str:
+    """The verdict of the four pairings' words: their common word; else "worse" / "better"
+    when each says the same direction (:data:`WORSE`, :data:`BETTER`); else
+    "restart-dependent"."""
+    if len(set(words)) == 1:
+        return words[0]
+    if all(w in WORSE for w in words):
+        return "worse"
+    if all(w in BETTER for w in words):
+        return "better"
+    return "restart-dependent"
 
 
 def score(s: Mapping) -> tuple[float, float]:
@@ -164,7 +200,7 @@ def compare(runs: dict, matched: list[str], columns: np.ndarray) -> dict:
     order = [{"pair": [a, b], **{k: v for k, v in across(runs[b], runs[a], columns).items()
                                  if k in ("pairings", "verdict")}}
              for a, b in itertools.pairwise(ranking)]  # fmt: skip
-    beaten = [n for n, v in vs.items() if v["verdict"] in ("higher", "fails more")]
+    beaten = [n for n, v in vs.items() if v["verdict"] in (*WORSE, "worse")]
     return {"ranking": ranking, "best": best, "best_determined": len(beaten) == len(vs),
             "against_best": vs, "order": order,
             "ties_with_best": [n for n, v in vs.items() if v["verdict"] in ("tie", "equivalent")],
@@ -172,12 +208,32 @@ def compare(runs: dict, matched: list[str], columns: np.ndarray) -> dict:
                                   if v["verdict"] == "restart-dependent"]}  # fmt: skip
 
 
+def fixed_settings(a) -> list[str]:
+    """The arm's numeric settings that are not free (left at the controller's defaults by the
+    tuning stage): the fields of its ``Settings`` with a number or a tuple of numbers as
+    default, less the keys of its free settings (switches and names are choices, not
+    listed)."""
+    import dataclasses
+
+    from wmr import controllers
+
+    keys = {f.key for f in a.free}
+
+    def numeric(v) -> bool:
+        items = v if isinstance(v, tuple) else (v,)
+        return all(isinstance(x, int | float) and not isinstance(x, bool) for x in items)
+
+    return [f.name for f in dataclasses.fields(controllers.get(a.controller).Settings)
+            if f.name not in keys and numeric(f.default)]  # fmt: skip
+
+
 def arm_entry(a, rec: Mapping, other_table: Mapping, runs: Mapping[str, np.ndarray],
               main: np.ndarray) -> dict:  # fmt: skip
     """An arm's record (``a``: its ``tuning.Arm``, ``rec`` its tuning record, ``runs`` its
     held-out results by level) on the cells ``main``."""
     return {"controller": a.controller, "pose_source": a.scenario["estimator.pose_source"],
-            "free": [f["name"] for f in rec["free"]], "evaluations": rec["evaluations"],
+            "free": [f["name"] for f in rec["free"]], "fixed": fixed_settings(a),
+            "evaluations": rec["evaluations"],
             "evaluations_per_restart": rec["evaluations_per_restart"],
             "objective": rec["objective"], "objective_at_defaults": rec["objective_at_defaults"],
             "agreement": rec["agreement"], "edges": rec["edges"], "values": rec["values"],
@@ -190,16 +246,33 @@ def arm_entry(a, rec: Mapping, other_table: Mapping, runs: Mapping[str, np.ndarr
 
 #: The comparison's rule, as the record states it.
 RULE = ("failure first: a run fails to track when it diverges (10 m) or its RMSE after the "
-        f"transient exceeds {rstats.TRACKING_M} m (the regime study's threshold); an exact sign "
-        "test over the cells of the two arms' failure counts at 5 % gives 'fails more' / 'fails "
-        "less'; else, per seed, the mean over its both-tracking cells of log r_X - log r_Y with "
-        "a 95 % t interval over the seeds: 'lower' / 'higher' when it excludes 0, 'equivalent' "
-        "inside +-log 1.05, 'tie' when it reaches 0, 'undetermined' with fewer than 2 seeds, "
-        "'mixed' when the arm failing on more cells is the lower, tied or equivalent one; each "
-        "comparison at the four pairings of the two arms' best and runner-up restarts, "
-        "'restart-dependent' unless all four agree; the best candidate (fewest tracking "
-        "failures, then lowest mean log RMSE) is the best only if every other arm is 'higher' "
-        "or 'fails more' against it at all four")
+        f"transient exceeds {rstats.TRACKING_M} m (the regime study's threshold); per seed, the "
+        "cells where one arm fails and the other tracks minus the reverse, and an exact "
+        "sign-flip test over the seeds of their sum at 5 % gives 'fails more' / 'fails less'; "
+        "else, per seed, the mean of log r_X - log r_Y over the cells where both arms track at "
+        "every seed, with a 95 % t interval over the seeds: 'lower' / 'higher' when it excludes "
+        "0, 'equivalent' inside +-log 1.05, 'tie' when it reaches 0, 'undetermined' with fewer "
+        "than 2 seeds or no such cell, 'mixed' when the arm failing more often is the lower, "
+        "tied or equivalent one; each comparison at the four pairings of the two arms' best "
+        "and runner-up restarts: their common word, 'worse' / 'better' when they differ but all "
+        "point one way, else 'restart-dependent'; the best candidate (fewest tracking "
+        "failures, then lowest mean log RMSE) is the best only if every other arm is 'higher', "
+        "'fails more' or 'worse' against it")
+
+
+def swap(x: str, y: str, own_x: np.ndarray, own_y: np.ndarray, x_with_y: np.ndarray,
+         y_with_x: np.ndarray, columns: np.ndarray) -> dict:
+    """Two laws ``x``, ``y`` with the same free settings, each held out at its own best table
+    (``own_*``) and at the other's (``x_with_y``: law x with y's table): x against y as tuned
+    (``as_tuned``), the laws at common settings (``both_at_x``: both with x's table;
+    ``both_at_y``), and each law with the other's table against itself with its own
+    (``x_swapped``, ``y_swapped``: what the tuning alone changes)."""
+    pairs = {"as_tuned": (own_x, own_y), "both_at_x": (own_x, y_with_x),
+             "both_at_y": (x_with_y, own_y), "x_swapped": (x_with_y, own_x),
+             "y_swapped": (y_with_x, own_y)}
+    return {"arms": [x, y], "held_out": {"x_with_y": summary(x_with_y[:, columns]),
+                                         "y_with_x": summary(y_with_x[:, columns])},
+            "comparisons": {k: paired(a, b, columns) for k, (a, b) in pairs.items()}}
 
 
 def assemble(entries: Mapping[str, dict], runs: Mapping[str, Mapping[str, np.ndarray]],

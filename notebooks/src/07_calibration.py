@@ -136,8 +136,9 @@ fig = figures.waves_figure(record)
 # Every arm on the measured pose, its free settings (the adaptation's too) tuned by the shared
 # stage with the same evaluations per setting, judged on held-out plants at unseen seeds, at
 # both of its tuning restarts. Failing to track (diverged, or a metre off the path) is its own
-# endpoint; a ratio whose paired interval contains 1 is a tie; an order the four pairings of the
-# two arms' restarts do not all give is restart-dependent, and no order is claimed there.
+# endpoint, compared seed by seed (an exact sign-flip test over the seeds); a ratio whose paired
+# interval contains 1 is a tie; an order the four pairings of the two arms' restarts do not all
+# point to is restart-dependent, and no order is claimed there.
 # %%
 fair = record["fair_tuning"]
 print("candidate ranking:", fair["ranking"], "| best shown:", fair["best_determined"])
@@ -145,6 +146,15 @@ for name, v in fair["against_best"].items():
     p = v["tuned"]
     ratio = ("no interval" if p["ci"] is None else
              f"{p['ratio']:.3f} [{p['ratio_ci'][0]:.3f}, {p['ratio_ci'][1]:.3f}]")
-    print(f"  {name:<24} ratio to {fair['best']} {ratio}  at the pairings: "
-          f"{', '.join(v['pairings'].values())}  -> {v['verdict']}")
+    print(f"  {name:<24} ratio to {fair['best']} {ratio} ({p['common_cells']} cells)  at the "
+          f"pairings: {', '.join(v['pairings'].values())}  -> {v['verdict']}")
 fig = figures.fair_comparison(record)
+# %% [md]
+# The two laws with the same free settings (IAPID-NN-DEKF and APID), each also run with the
+# other's best settings: is the difference between them the law's or the tuning's?
+# %%
+sw = fair["swap"]
+for key, p in sw["comparisons"].items():
+    ratio = ("no interval" if p["ci"] is None else
+             f"{p['ratio']:.3f} [{p['ratio_ci'][0]:.3f}, {p['ratio_ci'][1]:.3f}]")
+    print(f"  {key:<10} {ratio}  {p['word']}  ({p['common_cells']} cells)")
