@@ -80,41 +80,49 @@ def test_a_model_discrepancy_widens_the_rule_and_costs_power():
     assert rule.implausibility(runs, z, 0.1).max() <= c
 
 
-def test_divergence_is_a_binomial_count_judged_with_the_finite_runs():
-    """Closed forms: with k of K = 10 runs diverged and a finite target, the number's divergence
-    implausibility is the normal score of (K - k + 1) / (K + 2) (the rule of succession), and its
-    RMSE implausibility is the rule's over the K - k finite runs alone (K - k in place of K); the
-    larger of the two counts.  No count alone rules a number out at K = 10 (1/12 > the Sidak
-    level); a diverged target is judged by (k + 1) / (K + 2) alone; the other numbers do not
-    move."""
+def test_divergence_is_a_binomial_count_judged_jointly_over_the_runs():
+    """Closed forms: with k_r of K = 10 seeds diverged at run r (three numbers) and a finite
+    target, the runs' rule-of-succession chances (K - k_r + 1) / (K + 2) multiply; the numbers of
+    every run with a diverged seed score that product's normal score, scaled so that 0.05 scores
+    the threshold; their RMSE is judged over the finite seeds alone (K - k in place of K); the
+    larger counts.  A candidate diverging on every seed is ruled out, and one diverging on half
+    of every run's seeds (the paper printing 12 finite runs: chance 2.4e-4); one diverged seed is
+    not; a diverged target that the candidate never reproduces is ruled out (1/12 x (11/12)^11 =
+    0.032); the numbers of runs without divergence do not move."""
     from scipy import stats
 
     from analysis.calibration import rule
 
     rng = np.random.default_rng(3)
     nums = prior.PAPER * np.exp(rng.normal(0.0, 0.1, (10, 36)))
+    c = rule.threshold(10)
     base = rule.implausibility(nums, prior.PAPER)
+    assert base.max() < c
+
+    def score(p):
+        return stats.norm.isf(p / 2) * c / stats.norm.isf(0.025)
+
     nums2 = nums.copy()
-    nums2[:3, 0] = prior.DIVERGED_RMSE  # three of ten seeds diverged
+    nums2[:3, 0:3] = prior.DIVERGED_RMSE  # run 0 diverged at three of ten seeds
     got = rule.implausibility(nums2, prior.PAPER)
-    assert np.array_equal(got[1:], base[1:])
-    finite_only = rule.implausibility(nums[3:], prior.PAPER)[0]  # the 7 finite runs as a K = 7
-    assert base[0] < rule.threshold(10) and got[0] != base[0]
-    c10, c7 = rule.threshold(10), rule.threshold(7)
-    assert c10 == c7  # the Welch threshold does not depend on K (its per-number ones do)
-    div = stats.norm.isf((10 - 3 + 1) / 12 / 2)
-    assert got[0] == pytest.approx(max(finite_only, div), rel=1e-12)
-    nums3 = nums.copy()
-    nums3[:, 4] = prior.DIVERGED_RMSE  # every run diverged: the divergence score alone
-    assert rule.implausibility(nums3, prior.PAPER)[4] == pytest.approx(stats.norm.isf(1 / 24))
-    assert stats.norm.isf(1 / 24) < c10  # not ruled out by the count alone
+    assert np.array_equal(got[3:], base[3:])
+    finite_only = rule.implausibility(nums[3:], prior.PAPER)[0:3]  # the 7 finite seeds as K = 7
+    want = np.maximum(finite_only, score(8 / 12 * (11 / 12) ** 11))
+    assert got[0:3] == pytest.approx(want, rel=1e-12) and got.max() < c
+    assert rule.divergence_score(rule.DIVERGENCE_LEVEL, c) == pytest.approx(c, rel=1e-12)
+    every = np.full((10, 36), prior.DIVERGED_RMSE)
+    assert rule.implausibility(every, prior.PAPER).max() == pytest.approx(score(12.0**-12))
+    assert rule.implausibility(every, prior.PAPER).max() > c  # ruled out: it is not the paper
+    half = nums.copy()
+    half[:5] = prior.DIVERGED_RMSE  # every run diverged on 5 of 10 seeds
+    assert rule.implausibility(half, prior.PAPER).max() > c
+    assert score((6 / 12) ** 12) > c
     z = prior.PAPER.copy()
-    z[2] = prior.DIVERGED_RMSE  # a diverged target: (k + 1) / (K + 2)
-    assert rule.implausibility(nums, z)[2] == pytest.approx(stats.norm.isf(1 / 24))
-    nums2[:3, 2] = prior.DIVERGED_RMSE
-    assert rule.implausibility(nums2, z)[2] == pytest.approx(stats.norm.isf(4 / 12 / 2))
-    nums2[:, 2] = prior.DIVERGED_RMSE  # every run as the target: no evidence against it
-    assert rule.implausibility(nums2, z)[2] == 0.0
+    z[0:3] = prior.DIVERGED_RMSE  # a diverged target run the candidate never reproduces
+    assert rule.implausibility(nums, z)[0] == pytest.approx(score(1 / 12 * (11 / 12) ** 11))
+    assert rule.implausibility(nums, z)[0] > c
+    nums2[:, 0:3] = prior.DIVERGED_RMSE  # every seed as the target: no evidence against it
+    assert rule.implausibility(nums2, z)[0] == 0.0
 
 
 def test_clopper_pearson_closed_forms():
@@ -237,12 +245,11 @@ def test_the_rule_is_nominal_where_the_discrepancy_dominates_and_t_is_not():
 def test_a_diverged_run_is_judged_as_a_count_and_no_placeholder_enters_the_fit():
     """A candidate matching the paper closely at 9 of 10 seeds but diverging at one is not
     ruled out for it (the truth itself can diverge at times): the three numbers of the diverged
-    run are judged on the 9 finite runs and on the count (1 of 10); the others do not move.  The
+    run are judged on the 9 finite seeds and on the joint count (one diverged seed in 120); the
+    others do not move.  The
     fit's objective averages no 10 m placeholder: it is the rms log ratio of the finite seeds'
     means plus the stated penalty times the diverged share, and without divergence exactly
     ``prior.discrepancy``'s."""
-    from scipy import stats
-
     from analysis.calibration import fit as fitmod
     from analysis.calibration import rule
 
@@ -257,7 +264,7 @@ def test_a_diverged_run_is_judged_as_a_count_and_no_placeholder_enters_the_fit()
     for key, v in got["by_delta"].items():
         assert v["not_ruled_out"], key
         want = np.maximum(rule.implausibility(finite, prior.PAPER, float(key))[9:12],
-                          stats.norm.isf(10 / 12 / 2))  # fmt: skip
+                          rule.divergence_score(10 / 12 * (11 / 12) ** 11, got["threshold"]))
         assert v["implausibility"][9:12] == pytest.approx(want, rel=1e-12), key
         rest = [i for i in range(36) if not 9 <= i < 12]
         assert [v["implausibility"][i] for i in rest] == [

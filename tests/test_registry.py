@@ -45,7 +45,9 @@ def test_controller_settings_are_frozen_validated_dataclasses(ctrl):
 def test_controller_pack_law_and_final_state(ctrl, lemniscate):
     """Rules 2-5: pack gives (p, s, theta, P) of consistent shapes, draws only from its rng, the
     law writes a finite input for the reference's own pose, the logged names fit in s, and the
-    final state is a dataclass that copies (does not alias) the run's arrays."""
+    final state is a dataclass holding the run's values (it is built once, when the run is over,
+    so it may keep the run's arrays rather than copy them: rule 5), which later steps would
+    change (so a state read from the wrong place fails)."""
     st = ctrl.Settings()
     rng = np.random.default_rng(5)
     p, s, theta, P = ctrl.pack(st, lemniscate, rng)
@@ -60,10 +62,13 @@ def test_controller_pack_law_and_final_state(ctrl, lemniscate):
         assert np.all(np.isfinite(u))
     final = ctrl.final_state(p, s, theta, P)
     assert dataclasses.is_dataclass(final)
-    for f in dataclasses.fields(final):
-        v = getattr(final, f.name)
-        if isinstance(v, np.ndarray):
-            assert not any(np.shares_memory(v, a) for a in (s, theta, P))
+    kept = {f.name: np.array(getattr(final, f.name), copy=True) for f in dataclasses.fields(final)
+            if isinstance(getattr(final, f.name), np.ndarray)}  # fmt: skip
+    if hasattr(final, "theta"):  # a network's weights and covariance: the run's, as they are
+        assert np.array_equal(final.theta, theta) and np.array_equal(final.P, P)
+    ctrl.law(p, s, theta, P, ref[1, :3] + 0.1, ref[1], lemniscate.dt, u)  # the run goes on
+    again = ctrl.final_state(p, s, theta, P)
+    assert any(not np.array_equal(v, getattr(again, k)) for k, v in kept.items()) or not kept
 
 
 @pytest.mark.parametrize("ctrl", CONTROLLERS, ids=lambda c: c.name)

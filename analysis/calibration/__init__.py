@@ -489,7 +489,9 @@ def _check_fair(fair: dict) -> None:
         assert t["evaluations_per_restart"] == want, (name, t["evaluations_per_restart"], want)
         assert t["evaluations"] == want * b["restarts"], (name, t["evaluations"])
     matched = [f"{c}@{fairmod.POSE}" for c in fairmod.ARMS]
-    for part in [fair, *([fair["apart"]] if "apart" in fair else [])]:
+    subsets = [fair["apart"]] if "apart" in fair else []
+    subsets += [fair["where_all_track"]] if fair.get("where_all_track") else []
+    for part in [fair, *subsets]:
         assert sorted(part["ranking"]) == sorted(matched) and part["best"] == part["ranking"][0]
         vs = part["against_best"]
         for name, v in vs.items():
@@ -505,6 +507,11 @@ def _check_fair(fair: dict) -> None:
             _check_across("paper arm", v)
     for k, p in fair["swap"]["comparisons"].items():
         assert p["word"] == verdicts.word(p), (k, p)
+    d = fair["at_defaults"]
+    assert d["best"] == d["ranking"][0] and sorted(d["ranking"]) == sorted(matched)
+    assert all(p["word"] == verdicts.word(p) for p in d["against_best"].values())
+    assert d["best_determined"] == all(p["word"] in verdicts.WORSE
+                                       for p in d["against_best"].values())
     for name, t in fair["arms"].items():  # what is not free is listed, and only that
         assert not set(t["fixed"]) & {f.split("[")[0] for f in t["free"]}, (name, t["fixed"])
 

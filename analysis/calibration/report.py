@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 from analysis import common
+from analysis.calibration.rule import DIVERGENCE_LEVEL as RULE_LEVEL
 from analysis.calibration.waves import RECOVER
 from analysis.calibration.waves import VALID_WITHIN_3 as VALID
 from analysis.common import fmt
@@ -37,6 +38,7 @@ def _answer(r: dict) -> list[str]:
     sens = r["sensitivity"]["pawn"]["indices"].get("rms_log_ratio")
     top = [n for n in sens["ties"][0] if n != "dummy"] if sens else []
     inert = bool(sens) and "dummy" in sens["ties"][0]
+    above = list(sens.get("above_dummy", [])) if sens else []
     rule = [
         f"**The answer.** The rule is history-matching implausibility on log RMSE, with "
         f"{r['rule']['K']} seeds per candidate and threshold {ver['threshold']:.2f}.",
@@ -53,28 +55,29 @@ def _answer(r: dict) -> list[str]:
         "Around the truths it accepts, it rules out "
         + ", ".join(f"{d}: {x['k']:.0f} of {x['n']:.0f}"
                     for d, x in pl["power_given_accepted"].items()) + ".",
+        _fair_short(r["fair_tuning"]),
     ]
     earlier, dkey = pl["by_delta_earlier_threshold"], f"{pl['delta']:g}"
-    looser = [d for d in sorted(ver["by_delta"], key=float)
-              if float(d) > ver["delta"] and ver["by_delta"][d]["count"]]  # fmt: skip
     derive = [
         f"The threshold {pl['threshold']:.2f} is the normal Sidak quantile for 36 numbers at "
         f"{100 * pl['nominal']:.0f} %.",
         *([f"Without a model discrepancy (a planted truth has none) it accepts "
-           f"{_pct(pl['by_delta']['0']['coverage'])}: the statistical model's own calibration; "
-           f"the stated {100 * pl['delta']:.0f} % is what brings it to "
-           f"{100 * cov['p']:.0f} %."] if "0" in pl.get("by_delta", {}) else []),
+           f"{_pct(pl['by_delta']['0']['coverage'])}: the statistical model's own calibration "
+           f"(with the stated {100 * pl['delta']:.0f} %: {100 * cov['p']:.0f} %). On the "
+           f"{pl['coverage_all_finite']['n']:.0f} planted truths whose numbers are all finite, "
+           f"as the paper's, it accepts {_pct(pl['coverage_all_finite'])}."]
+          if "0" in pl.get("by_delta", {}) else []),
         "Each number is judged against Student t at the Welch-Satterthwaite degrees of freedom "
         "of its variance, since only the seed spread is estimated and the rounding and the "
         "discrepancy are stated.",
         f"The earlier threshold, t with {r['rule']['K'] - 1} degrees of freedom for every number "
         f"({earlier['threshold']:.2f}), rules out "
         f"{_pct(earlier[dkey]['power'][far])} at distance {far}.",
-        "Divergence is judged as a binomial count: the chance, by the rule of succession, that "
-        "one more run ends as the paper's did (finite), as a normal score beside the RMSE "
-        f"judged over the finite runs; with {r['rule']['K']} seeds no count alone rules a number "
-        f"out. {pl['truths_with_diverged_runs']['n']} of {cov['n']:.0f} planted truths had a "
-        f"diverged run among their {r['rule']['K']}; the rule accepts "
+        "Divergence is judged as a binomial count over the 12 runs jointly: the product of the "
+        "rule of succession's chances that each of the paper's runs ends as it did (finite); "
+        f"below {RULE_LEVEL:g} the candidate is ruled out, beside the RMSE judged over the "
+        f"finite seeds. {pl['truths_with_diverged_runs']['n']} of {cov['n']:.0f} planted truths "
+        f"had a diverged seed among their {r['rule']['K']}; the rule accepts "
         f"{pl['truths_with_diverged_runs']['accepted']} of them.",
         f"The verdict judges its candidates at seeds {_span(ver['seeds'])}, none of which "
         f"selected them (those were {_span(ver['selection_seeds'])}).",
@@ -85,11 +88,7 @@ def _answer(r: dict) -> list[str]:
            if v["count"] else f"None of the {ver['n_candidates']} candidates examined is")
         + f" (model discrepancy {100 * ver['delta']:.0f} %; smallest max implausibility "
         f"{v['min_max_implausibility']:.1f}).",
-        *([f"At a model discrepancy of {' and '.join(f'{100 * float(d):.0f} %' for d in looser)}"
-           " some are not ruled out "
-           f"({', '.join(str(ver['by_delta'][d]['count']) for d in looser)} of "
-           f"{ver['n_candidates']}): whether a setting reproduces the tables depends on the "
-           "discrepancy one grants (the table below)."] if looser else []),
+        _by_discrepancy(r, far),
         f"Scope: {ver['scope']}.",
         "The earlier '0 of 4,096 feasible' is retracted.",
     ]
@@ -103,15 +102,18 @@ def _answer(r: dict) -> list[str]:
         + ("within" if fit["spread"]["agree"] else "beyond")
         + f" the stated {fit['spread']['tolerance']:g}: "
         + ("they agree)." if fit["spread"]["agree"] else "the spread is the result)."),
-        *([f"The best fit sits on the prior's edge in {_edge_text(fit['edges'])}."]
-          if fit["edges"] else []),
+        _converged(fit),
+        *([f"The best fit sits on the prior's edge in {_edge_text(fit['edges'])} (reported, "
+           "the prior's range not widened)."] if fit["edges"] else []),
     ]
     ranking = [
         f"**The paper's ranking over the prior.** All nine orders as printed: "
         f"{_pct(po['all_nine'])}; IAPID-NN-DEKF lowest on all nine: "
         f"{_pct(po['iapid_first_all'])} (Clopper-Pearson over {po['n_points']} points).",
-        *(["PAWN separates no setting from an inert dummy setting on the discrepancy: none is "
-           "shown to decide it."] if inert or not top else
+        *([f"PAWN's first tied group on the discrepancy holds an inert dummy setting and "
+           f"{len(top)} settings, so it ranks none of them; "
+           + (f"{len(above)} lie above the dummy's bound ({', '.join(above)})."
+              if above else "none lies above the dummy's bound.")] if inert or not top else
           ["Settings that decide the discrepancy most (PAWN's first tied group, above an inert "
            "dummy setting): " + ", ".join(top) + "."]),
     ]
@@ -136,13 +138,58 @@ def _answer(r: dict) -> list[str]:
             " ".join(ranking), by_delta]
 
 
+def _fair_short(f: dict) -> str:
+    """Who wins under fair tuning, in one sentence for the section's opening."""
+    lead = (f"no arm beats {_arm(f['best'])}" if f["best_determined"] else
+            f"no arm is shown best ({_arm(f['best'])} is the candidate)")
+    wt, d = f.get("where_all_track"), f.get("at_defaults")
+    rest = []
+    if wt:
+        rest.append(f"where every tuned arm tracks, {_arm(wt['best'])} "
+                    + ("is beaten by none" if wt["best_determined"] else "is the candidate"))
+    if d:
+        rest.append(f"at the defaults, {_arm(d['best'])} "
+                    + ("is beaten by none" if d["best_determined"] else "is the candidate"))
+    cells = f["held_out"]["cells"]
+    failing = sorted({cells[i].split("@")[1] for n in f["ranking"]
+                      for i, k in enumerate(f["arms"][n]["held_out"]["per_cell_failures"]) if k})
+    return (f"Tuned alike on held-out plants, {lead}"
+            + (f", a lead that rests on where tuned arms fail ({', '.join(failing)})"
+               if failing else "")
+            + ("; " + "; ".join(rest) if rest else "") + ".")
+
+
+def _converged(fit: dict) -> str:
+    """Whether CMA-ES's restarts stopped by its own rule or at the evaluation cap, and how much
+    each was still improving over its last tenth of generations."""
+    capped = [x for x in fit["restarts"] if not x["stop"]]
+    gains = [x["history"][-max(1, len(x["history"]) // 10) - 1] - x["history"][-1]
+             for x in capped]  # fmt: skip
+    if not capped:
+        return "Every restart stopped by CMA-ES's own tolerance."
+    return (f"{len(capped)} of {len(fit['restarts'])} restarts stopped at their evaluation "
+            f"cap ({max(x['nfev'] for x in capped):,} with the start), their best improving by "
+            f"{min(gains):.3f}-{max(gains):.3f} over their last tenth of generations: the fit "
+            "has not converged, and the spread measures the budget as much as distinct optima.")
+
+
+def _by_discrepancy(r: dict, far: str) -> str:
+    """The verdict's count at every discrepancy, each with the rule's power there."""
+    ver, pl = r["verdict"], r["planted"]
+    parts = [f"{100 * float(d):.0f} %: {v['count']} (power at {far} "
+             f"{100 * pl['by_delta'][d]['power'][far]['p']:.0f} %)"
+             for d, v in sorted(ver["by_delta"].items(), key=lambda kv: float(kv[0]))]
+    return ("Candidates not ruled out, by the discrepancy granted: " + "; ".join(parts)
+            + ". A looser discrepancy keeps more, and rules out less of what is wrong.")
+
+
 def _answer_tables(r: dict) -> list[str]:
     fit, pts = r["best_fit"], r["points"]
     worst = sorted(fit["residuals"].items(), key=lambda kv: -kv[1]["implausibility"])[:5]
     nums = pts["numbers"]
     never = [n for n in nums if not nums[n]["spanned"]]
     rows = [[_label(n), fmt(x["mean"]), fmt(x["paper"]), f"x{x['ratio']:.2f}",
-             f"{x['implausibility']:.1f}"] for n, x in worst]  # fmt: skip
+             f"{x['implausibility']:.3f}"] for n, x in worst]  # fmt: skip
     out = "\n".join([
         f"**Where does the closest fit miss?** Its {len(worst)} largest implausibilities:", "",
         *common.md_table(["number", "closest fit", "paper", "ratio", "implausibility"], rows),
@@ -227,6 +274,9 @@ def _names(names: list[str]) -> str:
     return ", ".join(_arm(n) for n in names)
 
 
+#: How the answer names the arms of each verdict against a best shown best.
+_WORSE = {"fails more": "fail more", "higher": "are higher",
+          "worse": "fail more or are higher, depending on the restarts"}
 #: How the answer names the arms of each verdict against a best not shown best.
 _AGAINST = {"tie": "{} tie with it",
             "equivalent": "{} are equivalent to it within 5 %",
@@ -258,8 +308,12 @@ def _who(f: dict, where: str, arms: dict) -> str:
     held-out summaries on those cells)."""
     best = f["best"]
     if f["best_determined"]:
-        return (f"Tuned alike, {_arm(best)} tracks best {where}: every other arm is higher "
-                "or fails more against it at all four pairings of the two arms' restarts.")
+        by: dict[str, list[str]] = {}
+        for n, v in f["against_best"].items():
+            by.setdefault(v["verdict"], []).append(n)
+        said = "; ".join(f"{_names(ns)} {_WORSE[w]}" for w, ns in by.items())
+        return (f"Tuned alike, no arm beats {_arm(best)} {where}: against it {said}, at all "
+                "four pairings of the two arms' restarts.")
     by: dict[str, list[str]] = {}
     for n, v in f["against_best"].items():
         by.setdefault(v["verdict"], []).append(n)
@@ -286,6 +340,43 @@ def _order(f: dict) -> str:
     return out
 
 
+def _beside(f: dict, ho: dict, arms: dict) -> list[str]:
+    """What the ranking says where every arm tracks (the plants without a tuned failure) and
+    at the defaults: the failures' share of the verdict."""
+    out = []
+    wt = f.get("where_all_track")
+    if wt:
+        plants = sorted({ho["cells"][i].split("@")[1] for i in wt["cells"]})
+        out.append(_who(wt, f"on the plants where every tuned arm tracks ({', '.join(plants)})",
+                        {n: {"held_out": summary_of(arms, n, wt["cells"])} for n in arms}))
+    d = f.get("at_defaults")
+    if d:
+        vs = d["against_best"]
+        said = "; ".join(f"{_arm(n)} {v['word']}" for n, v in vs.items())
+        out.append(f"At their defaults (untuned) {_arm(d['best'])} is the candidate "
+                   + ("and every other arm is higher or fails more against it" if
+                      d["best_determined"] else "but not shown best") + f" ({said}).")
+    return out
+
+
+def summary_of(arms: dict, name: str, cells: list[int]) -> dict:
+    """An arm's tuned held-out failures on the main cells ``cells`` (positions), from its
+    per-cell counts (for :func:`_candidate`'s sentence)."""
+    s = arms[name]["held_out"]
+    k = sum(s["per_cell_failures"][i] for i in cells)
+    n = s["tracking_failure"]["n"] * len(cells) // len(s["per_cell_failures"])
+    return {"tracking_failure": {"diverged": k, "n": n}}
+
+
+def _edges(f: dict) -> str:
+    """The arms whose best tuning ends on its box's edge (DESIGN §7.2: flagged, not hidden)."""
+    arms = f["arms"]
+    on = [f"{_arm(n)} {len(arms[n]['edges'])} of {len(arms[n]['free'])}"
+          for n in f["ranking"] if arms[n]["edges"]]
+    return ("Settings whose tuned optimum lies on its box's edge (reported, the boxes not "
+            f"widened): {', '.join(on)}." if on else "No tuned optimum lies on a box's edge.")
+
+
 def _swap(f: dict) -> str:
     """The settings swap of the two laws with the same free settings."""
     sw = f["swap"]
@@ -295,11 +386,16 @@ def _swap(f: dict) -> str:
         v = sw["comparisons"][k]
         return f"{_ratio(v)} ({v['word']}, {v['common_cells']} cells)"
 
+    c = sw["comparisons"]
+    common = [c["both_at_x"]["word"], c["both_at_y"]["word"]]
+    read = ("at common settings the two laws are not told apart"
+            if all(w in ("tie", "equivalent", "undetermined", "mixed") for w in common) else
+            f"at common settings {x} is '{common[0]}' at {x}'s and '{common[1]}' at {y}'s")
     return (f"The two laws with the same free settings, {x} and {y}, were also run with each "
-            f"other's best settings. {x} over {y}: {said('as_tuned')} as tuned, "
-            f"{said('both_at_x')} with both at {x}'s settings, {said('both_at_y')} with both "
-            f"at {y}'s. Each law with the other's settings over itself with its own: {x} "
-            f"{said('x_swapped')}, {y} {said('y_swapped')}.")
+            f"other's best settings (best restarts only). {x} over {y}: {said('as_tuned')} as "
+            f"tuned, {said('both_at_x')} with both at {x}'s settings, {said('both_at_y')} with "
+            f"both at {y}'s. Each law with the other's settings over itself with its own: {x} "
+            f"{said('x_swapped')}, {y} {said('y_swapped')}. So {read}.")
 
 
 def _fixed(f: dict) -> str:
@@ -338,9 +434,10 @@ def _answer_fair(r: dict) -> list[str]:
               "No arm fails to track held out."),
              *([f"At their defaults {_names(worse)} track every held-out run; tuned "
                 "on the training plants, they do not."] if worse else []),
+             *_beside(f, ho, arms),
              f"The paper's set-up, {_arm(pa['arm'])}, is '{pa['against_raw']['verdict']}' "
              f"against the same law on the measured pose and '{pa['against_best']['verdict']}' "
-             f"against {_arm(best)}.", _swap(f)]
+             f"against {_arm(best)}.", _swap(f), _edges(f)]
     ap = f.get("apart")
     if ap:
         held = {n: {"held_out": s} for n, s in ap["held_out"].items()}
@@ -356,10 +453,10 @@ def _answer_fair(r: dict) -> list[str]:
         f"free settings were tuned by the shared stage (analysis/tuning.py) with "
         f"{b['per_setting']} evaluations per setting per restart and {b['restarts']} CMA-ES "
         f"restarts. Left at their defaults (not free): {_fixed(f)}. Training used the regime "
-        "study's "
-        f"{len(b['training'])} trajectory-plant pairs at seeds {_span(b['train_seeds'])}: "
-        "other members of the held-out trajectories' families, and two of the held-out "
-        "mechanisms at half their magnitude (lag-delay, slip).",
+        f"study's {len(b['training'])} trajectory-plant pairs "
+        f"({', '.join(b['training'])}) at seeds {_span(b['train_seeds'])}: other members of the "
+        "held-out trajectories' families, on plants with some of the held-out mechanisms at "
+        "other magnitudes (analysis/calibration/fair.py says which).",
         f"Held out: the {len(ho['cells'])} cells ({', '.join(ho['plants'])}; the skid outward) "
         f"at seeds {_span(b['test_seeds'])}, each arm at its best restart, its runner-up and "
         "its defaults. Failing to track is its own endpoint, compared seed by seed: the cells "

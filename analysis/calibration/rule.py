@@ -30,18 +30,21 @@ is kept as the explicit option ``rule="t"`` (:data:`RULES`): it ignores that ``V
 estimate, so at ``delta > 0`` it is looser than its nominal level.
 
 **Divergence** (:data:`DIVERGENCE_RULE`).  The paper prints a finite RMSE for every number;
-a run of the candidate may diverge.  Divergence is a binomial count, judged as one: with ``k``
-of the ``K`` runs diverged, the probability that one more run at ``x`` (the paper's) ends as
-the target did is the rule of succession's ``(K - k + 1) / (K + 2)`` for a finite target and
-``(k + 1) / (K + 2)`` for a diverged one (a uniform prior on the divergence probability); its
-two-sided normal score ``Phi^{-1}(1 - P / 2)`` is the number's divergence implausibility, on
-the threshold's scale (0 when every run ended as the target did).  A number's implausibility
-is the larger of that and the RMSE implausibility above over its ``K_f`` finite runs (``K_f``
-in place of ``K``; not judged on the RMSE with fewer than two finite runs, nor when the target
-diverged).  At ``K = 10`` no
-divergence count alone rules a number out (``P >= 1/12``): a setting whose runs diverge at
-times is what the truth itself can be (the earlier rule, "any diverged run rules the number
-out", rejected 6 of 100 planted truths on that alone, 60-70 % of its misses).
+a run of the candidate may diverge.  Divergence is a binomial count, judged jointly over the 12
+runs (a scenario and a controller: three numbers each): with ``k_r`` of the ``K`` runs of run
+``r`` diverged, the chance that one more run ends as the target's did is the rule of
+succession's ``(K - k_r + 1) / (K + 2)`` for a finite target and ``(k_r + 1) / (K + 2)`` for a
+diverged one (a uniform prior on the divergence probability); their product ``P`` is the
+predictive probability of the target's whole pattern (the paper's: all 12 finite).  A candidate
+with ``P`` below :data:`DIVERGENCE_LEVEL` is ruled out: the numbers of every run whose seeds
+did not all end as the target did score :func:`divergence_score` (``c`` at ``P = 0.05``), the
+others 0.  A number's implausibility is the larger of that and the RMSE implausibility above
+over its ``K_f`` finite runs (``K_f`` in place of ``K``; not judged on the RMSE with fewer than
+two finite runs, nor when the target diverged).  A candidate never diverging scores
+``(11/12)^12 = 0.35``; one diverging on every seed of every run ``(1/12)^12``; on 5 of 10 seeds
+of every run ``2.4e-4``.  (The first binomial rule judged each number alone at the Sidak level,
+so that no count could rule a candidate out at ``K = 10``; the earlier rule still, "any
+diverged run rules the number out", rejected 6 of 100 planted truths on that alone.)
 
 **Coverage and power** (:func:`planted`): settings drawn uniformly from the prior (unit cube of
 the settings varied), their 36 numbers made by the suite as the paper's were (one run at a seed
@@ -67,9 +70,10 @@ from analysis.calibration import prior
 from wmr.stats import clopper_pearson
 
 __all__ = ["LEVEL", "DISTANCES", "TRUTH_SEED0", "PLANT_SEED", "DELTAS", "DELTA", "RULES",
-           "RULE", "DIVERGENCE_RULE", "threshold", "per_number_threshold", "effective_dof",
-           "implausibility", "CAP", "capped", "printed_round", "clopper_pearson",
-           "proportion", "planted", "judge", "rmse_numbers"]  # fmt: skip
+           "RULE", "DIVERGENCE_RULE", "DIVERGENCE_LEVEL", "divergence_score", "threshold",
+           "per_number_threshold", "effective_dof", "implausibility", "CAP", "capped",
+           "printed_round", "clopper_pearson", "proportion", "planted", "judge",
+           "rmse_numbers"]  # fmt: skip
 
 #: The rule's nominal joint level over the 36 numbers.
 LEVEL = 0.95
@@ -97,11 +101,11 @@ DELTA_SOURCE = (
 RULES = ("welch", "t")
 RULE = "welch"
 #: The divergence rule, as the record states it.
-DIVERGENCE_RULE = ("divergence as a binomial count: with k of the K runs diverged, the "
-                   "probability that one more run ends as the target did is (K - k + 1) / "
-                   "(K + 2) for a finite target, (k + 1) / (K + 2) for a diverged one (rule of "
-                   "succession); its two-sided normal score is the number's divergence "
-                   "implausibility, and the RMSE is judged over the finite runs (at least 2)")
+DIVERGENCE_RULE = ("divergence as a binomial count judged over the 12 runs jointly: the "
+                   "product over the runs of the rule of succession's chance that one more run "
+                   "ends as the target's did ((K - k + 1) / (K + 2) for a finite target, "
+                   "(k + 1) / (K + 2) for a diverged one); below 0.05 the candidate is ruled "
+                   "out; the RMSE is judged over the finite runs (at least 2)")
 
 
 def _per(level: float, n: int) -> float:
@@ -171,10 +175,12 @@ def implausibility(nums: np.ndarray, z: np.ndarray, delta: float = 0.0,
     fin = x < prior.DIVERGED_RMSE
     k_fin = fin.sum(axis=0)
     z_fin = z < prior.DIVERGED_RMSE
-    # divergence as a binomial count: the rule of succession's chance of the target's status
-    same = np.where(z_fin, k_fin, k - k_fin)  # runs that ended as the target did
-    out = np.where(same < k, stats.norm.isf((same + 1) / (k + 2.0) / 2.0), 0.0)
     c = threshold(k, rule=rule)
+    # divergence as a binomial count, judged jointly over the 12 runs (3 numbers each): the rule
+    # of succession's chance that each run of the target ends as it did, multiplied
+    same = np.where(z_fin, k_fin, k - k_fin)[::3]  # per run: its seeds that ended as the target
+    p_joint = float(np.prod((same + 1.0) / (k + 2.0)))
+    out = np.repeat(np.where(same < k, divergence_score(p_joint, c), 0.0), 3)
     for kf in np.unique(k_fin[z_fin & (k_fin >= 2)]):  # the RMSE over the finite runs
         sel = z_fin & (k_fin == kf)
         y = np.log(np.maximum(np.where(fin[:, sel], x[:, sel], 1.0), 1e-12))
@@ -189,6 +195,18 @@ def implausibility(nums: np.ndarray, z: np.ndarray, delta: float = 0.0,
             i_sel = i_sel * c / threshold(int(kf), rule="t")
         out[sel] = np.maximum(out[sel], i_sel)
     return out
+
+
+#: The joint divergence check's level: a candidate under which the target's divergence pattern
+#: (the paper's: every run finite) has a predictive probability below it is ruled out.
+DIVERGENCE_LEVEL = 0.05
+
+
+def divergence_score(p_joint: float, c: float) -> float:
+    """The joint divergence probability ``p_joint`` as an implausibility on the threshold ``c``'s
+    scale: its two-sided normal score, scaled so that ``p_joint =`` :data:`DIVERGENCE_LEVEL`
+    scores exactly ``c``."""
+    return float(stats.norm.isf(p_joint / 2.0) * c / stats.norm.isf(DIVERGENCE_LEVEL / 2.0))
 
 
 #: How an infinite implausibility (a number ruled out by divergence) is written in the record.
@@ -258,7 +276,8 @@ def planted(ev, space, n_truths: int, rule_seeds: Sequence[int],
     at = {(rl, dl): _planted_at(res, per, n_truths, distances, away, kept, threshold(k, rule=rl),
                                 dl, rl) for rl in RULES for dl in DELTAS}  # fmt: skip
     head = at[RULE, DELTA]  # the verdict's discrepancy and threshold: the rule as it is applied
-    keys = ("coverage", "power", "power_continuous_only", "power_given_accepted", "too_loose")
+    keys = ("coverage", "coverage_all_finite", "power", "power_continuous_only",
+            "power_given_accepted", "too_loose")
     return {"n_truths": n_truths, "rule_seeds": list(rule_seeds), "threshold": threshold(k),
             "threshold_rule": RULE, "truth_seeds": [TRUTH_SEED0, TRUTH_SEED0 + n_truths - 1],
             "generator_seed": seed, "delta": DELTA, "nominal": LEVEL, **head,
@@ -276,9 +295,10 @@ def _planted_at(res, per, n_truths, distances, away, kept, c, delta, rl) -> dict
     """Coverage and power of the rule (threshold ``rl``, value ``c``) at discrepancy ``delta``
     from the planted runs; ``kept`` (truths, distances): the moves that left every discrete
     setting as it was."""
-    imax_truth, imax_away, which = [], [], []
+    imax_truth, imax_away, which, finite = [], [], [], []
     for t in range(n_truths):
         z = printed_round(rmse_numbers(res[per * t])[0])
+        finite.append(bool(np.all(z < prior.DIVERGED_RMSE)))
         i_t = capped(implausibility(rmse_numbers(res[per * t + 1]), z, delta, rl))
         imax_truth.append(float(i_t.max()))
         which.append(int(np.argmax(i_t)))
@@ -303,7 +323,10 @@ def _planted_at(res, per, n_truths, distances, away, kept, c, delta, rl) -> dict
         cont[f"{r:g}"] = {**proportion(int(np.sum(ia[sel, j] > c)), int(sel.sum())),
                           "distance": r}  # fmt: skip
     worst = np.bincount(which, minlength=36)
-    return {"coverage": proportion(acc, n_truths), "power": power,
+    fin = np.array(finite)
+    return {"coverage": proportion(acc, n_truths),
+            "coverage_all_finite": proportion(int(np.sum(accepted & fin)), int(fin.sum())),
+            "power": power,
             "power_continuous_only": cont, "power_given_accepted": given,
             "truths_with_diverged_runs": {"n": int(div_runs.sum()),
                                           "accepted": int(np.sum(div_runs & accepted))},

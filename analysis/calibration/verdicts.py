@@ -41,13 +41,14 @@ from collections.abc import Mapping
 
 import numpy as np
 
+from analysis.calibration import prior
 from analysis.calibration.store import METRICS
 from analysis.regimes import stats as rstats
 from analysis.regimes.stats import divergence, mcnemar
 
 __all__ = ["EQUIV", "RESTARTS", "PAIRINGS", "WORSE", "BETTER", "summary", "seed_flip_test",
-           "paired", "word", "across", "combined", "score", "compare", "fixed_settings",
-           "arm_entry", "assemble", "swap", "RULE"]  # fmt: skip
+           "paired", "word", "across", "combined", "score", "compare", "at_defaults",
+           "fixed_settings", "arm_entry", "assemble", "swap", "RULE"]  # fmt: skip
 
 #: Relative equivalence margin of a paired log ratio: ±5 %.
 EQUIV = math.log(1.05)
@@ -275,13 +276,39 @@ def swap(x: str, y: str, own_x: np.ndarray, own_y: np.ndarray, x_with_y: np.ndar
             "comparisons": {k: paired(a, b, columns) for k, (a, b) in pairs.items()}}
 
 
+def at_defaults(runs: Mapping, matched: list[str], columns: np.ndarray) -> dict:
+    """The matched arms at their defaults on ``columns``: the candidate ranking (as
+    :func:`score`), each arm against the candidate best (one pairing: the defaults have no
+    restarts) and whether the best is determined (every other arm higher or fails more)."""
+    score_of = {n: score(summary(runs[n]["default"][:, columns])) for n in matched}
+    ranking = sorted(matched, key=score_of.get)
+    best = ranking[0]
+    vs = {n: paired(runs[n]["default"], runs[best]["default"], columns) for n in ranking[1:]}
+    return {"ranking": ranking, "best": best, "against_best": vs,
+            "best_determined": all(v["word"] in WORSE for v in vs.values())}
+
+
 def assemble(entries: Mapping[str, dict], runs: Mapping[str, Mapping[str, np.ndarray]],
              matched: list[str], paper: str, raw: str, main: np.ndarray,
              apart: np.ndarray, apart_plants: list[str]) -> dict:  # fmt: skip
     """The fair tuning's comparison part of the record: the arms' ``entries``, the matched
-    arms' ranking on the cells ``main`` (:func:`compare`), the paper's arm against the best
-    and against ``raw``, and the plants compared apart (cells ``apart``)."""
+    arms' ranking on the cells ``main`` (:func:`compare`), the same on the plants where no
+    matched arm's tuned runs fail to track (``where_all_track``: what the ranking says apart
+    from the failures; its ``cells`` index the ``main`` cells) and at the defaults
+    (:func:`at_defaults`), the paper's arm against the best and against ``raw``, and the
+    plants compared apart (cells ``apart``).  The columns are the cells scenario by scenario,
+    the plants in the same order within each (``fair.cells``), so a column's plant is its
+    index modulo the number of plants."""
     out: dict = {"arms": dict(entries), **compare(runs, matched, main)}
+    n_cols = main.size
+    plant = np.arange(n_cols) % (n_cols // len(prior.SCENARIOS))
+    failing = {int(plant[j]) for n in matched for j in np.flatnonzero(main)
+               if _runs(runs[n]["tuned"])[2][:, j].any()}  # fmt: skip
+    rest = main & ~np.isin(plant, sorted(failing))
+    within = np.flatnonzero(rest[main])  # the kept cells' positions among the main cells
+    out["where_all_track"] = ({"cells": within.tolist(), **compare(runs, matched, rest)}
+                              if rest.any() else None)  # fmt: skip
+    out["at_defaults"] = at_defaults(runs, matched, main)
     best = out["best"]
     out["paper_arm"] = {"arm": paper, "against_best": across(runs[paper], runs[best], main),
                         "against_raw": across(runs[paper], runs[raw], main)}
