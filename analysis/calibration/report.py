@@ -527,7 +527,7 @@ def notes(record: dict) -> str:
     out += _answer_sequential(record) + _answer_sensitivity(record) + _answer_fair(record)
     sizes = (f"{record['planted']['n_truths']} planted truths, {record['points']['n']:,} design "
              f"points and {len(record['best_fit']['restarts'])} CMA-ES restarts")
-    out.append(f"**Level: {record['level']}**, {_level_note(record)}: {sizes}. Cost: "
+    out.append(f"**Level: {record['level']}** ({sizes}), {_level_note(record)}. Cost: "
                f"{c['runs_in_store']:,} runs in the store; {c['runs_total']:,} runs were "
                f"run for it in {c['seconds_running_total']:.0f} s of running over every "
                f"invocation ({c['runs_this_time']:,} runs and {c['seconds']:.0f} s wall in "
@@ -542,20 +542,23 @@ def notes(record: dict) -> str:
 #: What each level is, in the report (sentences after "Level: <name>,").
 LEVEL_NOTE = {
     "quick": "the tests' few points on short runs",
-    "medium": "the committed record, a reduced level (the full study, `make calibration`, "
-              "has {full})",
-    "full": "the whole study (`make calibration`)",
+    "medium": "the committed record and the study `make calibration` runs ({timed}). The "
+              "larger `--full` level ({full}) does not fit the 90-minute budget on 2 workers. "
+              "Its stages there: {full_timed}",
+    "full": "a larger study than the 90-minute budget allows on 2 workers (`--full`)",
 }
 
 
 def _level_note(record: dict) -> str:
-    """The level's sentence, with the sizes of the record and of the full level."""
+    """The level's sentence, with the sizes of the record and of the full level, and the
+    measured wall times (:data:`stages.TIMED`)."""
     from analysis.calibration import stages
 
     f = stages.FULL
-    full = (f"{f.n_truths} planted truths, {2 * 2**f.design_m:,} design points and "
-            f"{f.cma_restarts} CMA-ES restarts")
-    return LEVEL_NOTE.get(record["level"], "").format(full=full)
+    full = (f"{f.n_truths} planted truths, {2 * 2**f.design_m:,} design points, "
+            f"{f.cma_restarts} CMA-ES restarts of popsize {f.cma_popsize}")
+    return LEVEL_NOTE.get(record["level"], "").format(
+        full=full, timed=stages.TIMED["medium"], full_timed=stages.TIMED["full"])
 
 
 def table(record: dict) -> str:

@@ -31,7 +31,7 @@ from wmr.engine.sweep import Factor
 
 __all__ = ["Level", "FULL", "MEDIUM", "QUICK", "LEVELS", "Space", "OUTPUTS", "numbers",
            "run_outputs", "screening", "design", "coverage", "sensitivity", "ranking",
-           "MORRIS_SEED", "DESIGN_SEED"]  # fmt: skip
+           "MORRIS_SEED", "DESIGN_SEED", "TIMED"]  # fmt: skip
 
 MORRIS_SEED = 0
 DESIGN_SEED = 0
@@ -48,8 +48,9 @@ SCREEN_OUTPUTS = OUTPUTS + tuple(f"log_rmse:{s}/{c}" for s in prior.SCENARIOS
 
 @dataclass(frozen=True)
 class Level:
-    """How much of the study to run (``QUICK`` for tests, ``MEDIUM`` the committed record,
-    ``FULL`` the whole study)."""
+    """How much of the study to run (``QUICK`` for tests, ``MEDIUM`` the committed record and
+    what ``make calibration`` runs within its 90-minute budget, ``FULL`` a larger study for a
+    machine with more cores: see :data:`TIMED`)."""
 
     name: str
     seeds: tuple[int, ...]  # the design's seeds (common random numbers; the fit's objective)
@@ -85,10 +86,10 @@ class Level:
 #: The fair tuning of the medium and full levels: the regime study's full-level budget and
 #: training (so the two studies share one tuning), ten held-out seeds.
 _FAIR = Budget(per_setting=30, train_seeds=(100, 101), test_seeds=tuple(range(200, 210)))
-#: The full level within its 90-minute budget on 2 workers of a machine ~2x slower per step than
-#: the one the earlier records came from: 2 x 1,024 design points (N >= 1,024 for the sensitivity
-#: indices), 5 CMA-ES restarts of 1,000 evaluations, the emulator on the design's first 512 points
-#: (an exact GP costs O(N^2 d) per gradient: 128 s at 256 points).
+#: A larger study than the 90-minute budget allows on 2 workers of this machine (~2x slower per
+#: step than the one the earlier records came from; :data:`TIMED`): 2 x 1,024 design points
+#: (N >= 1,024 for the sensitivity indices), 5 CMA-ES restarts of popsize 12 and 1,000
+#: evaluations, 30 recovery truths, the emulator on the design's first 512 points.
 FULL = Level("full", (0, 1), morris_r=20, design_m=10, rule_seeds=tuple(range(10)),
              n_truths=100, verdict_top=20, cma_restarts=5, cma_popsize=12, cma_maxfevals=1000,
              fair=_FAIR,
@@ -110,6 +111,16 @@ QUICK = Level("quick", (0,), morris_r=2, design_m=3, rule_seeds=(0, 1, 2), n_tru
               base={"duration": 21.0, "dt": 0.05}, screen_fraction=0.3,
               pawn_resamples=10, verdict_seeds=(1, 2, 3))  # fmt: skip
 LEVELS = {lv.name: lv for lv in (QUICK, MEDIUM, FULL)}
+#: Measured wall times from an empty store (`python -m analysis.calibration --level L
+#: --workers 2`, a 2-core machine, 2026-12-07; the log of the full level's stages is summarised
+#: here).  MEDIUM is what ``make calibration`` runs: the study within its 90-minute budget.
+TIMED = {
+    "medium": "4,860 s from an empty store on 2 workers, 201,516 runs",
+    "full": "screening and design 15 min, planted truths 15 min, the emulator, its waves and "
+            "30 recovery truths 27 min. The fit then took ~9 s per generation of 12 points: its "
+            "5 x 84 generations ~63 min, about 2 h in all with the verdict and fair tuning "
+            "(stopped in the fit's first restart)",
+}
 
 
 @dataclass(frozen=True)
