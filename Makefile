@@ -42,7 +42,7 @@ robots: $(STAMP)
 # The calibration study within its 90-minute budget on 2 workers: the medium level, the committed
 # record (201,516 runs, 4,860 s measured from an empty store on a 2-core machine, 2026-12-07; its
 # store resumes).  `--full` is a larger study (2,048 design points, popsize-12 CMA-ES) that needs
-# about 2 h there (analysis/calibration/stages.py: TIMED).  `make reproduce` only re-renders the
+# over 2 h there (analysis/calibration/stages.py: TIMED).  `make reproduce` only re-renders the
 # committed record.
 calibration: $(STAMP)
 	$(BIN)/python -m analysis.calibration --out paper --level medium --workers 2

@@ -49,7 +49,8 @@ Commands: ``wmr analyze calibration`` (and ``wmr reproduce``) re-render the comm
 ``python -m analysis.calibration --level medium|full [--workers N]`` recomputes it in a
 resumable store ``calibration-<level>/`` under ``$WMR_STORES`` (default
 ``~/.cache/wmr/stores``; a store of other sources is set aside and rebuilt); ``--full`` is
-``--level full`` (``make calibration``).
+``--level full``.  ``make calibration`` runs the medium level, the committed record, within its
+90-minute budget on 2 workers; the full level needs over 2 h there (``stages.TIMED``).
 """
 
 from __future__ import annotations
@@ -151,7 +152,7 @@ def fit_scenarios(settings: dict, rms: float, folder: Path) -> list[str]:
                                      if getattr(st, f) != getattr(default, f)}  # fmt: skip
         header = (f"A FIT, not the suite's defaults: the settings of the prior closest to the "
                   f"paper's Tables 1-3 (rms log ratio {rms:.3f} over the 36 numbers),\nfound by "
-                  "analysis/calibration/ (`python -m analysis.calibration --full`); see "
+                  "analysis/calibration/ (`make calibration`); see "
                   "paper/report.md.\nOne value for all four controllers wherever a setting is "
                   "shared; mu, P0, Q, R and the initial pose as the paper gives them.")
         path = folder / f"{sc}.toml"
@@ -328,7 +329,7 @@ def compute(out: Path, level_name: str, workers: int | None, progress=None) -> d
                          "the rule's below"}  # fmt: skip
 
 
-#: The repository's results (the committed record of the full study).
+#: The repository's results (the committed record: the medium level).
 COMMITTED = Path(__file__).resolve().parents[2] / "paper"
 
 
@@ -345,8 +346,9 @@ def _committed(out: Path) -> tuple[Path, dict] | tuple[None, None]:
 def run(out, *, quick: bool = False, workers: int | None = None, full: bool = False,
         progress: bool | None = None, level: str | None = None) -> dict:  # fmt: skip
     """The study into ``out``: ``quick`` a few points on short runs (tests); ``full`` (or
-    ``level``: quick, medium, full) recomputes everything (the full study about 90 minutes on
-    two cores, the medium one about 25; the store resumes); otherwise the full or medium
+    ``level``: quick, medium, full) recomputes everything (on two cores the medium level, the
+    committed record, 4,860 s from an empty store; the full level over 2 h: ``stages.TIMED``;
+    the store resumes); otherwise the full or medium
     record in ``out`` or, failing that, the repository's committed one is re-rendered
     (figures, table; ``wmr reproduce`` stays short), and only without any record is the
     study computed (medium)."""

@@ -48,7 +48,12 @@ def _answer(r: dict) -> list[str]:
         "At that discrepancy it rules out points at unit-cube distance "
         + ", ".join(f"{d}: {_pct(x)}" for d, x in pl["power"].items()) + ".",
         *([f"It is too loose to decide (power below 90 % at distance {far})."]
-          if pl["too_loose"] else []),
+          if pl["too_loose"] else
+          [f"The 90 % power criterion at distance {far} holds at its point estimate only (its "
+           f"interval reaches {100 * pl['power'][far]['ci_low']:.1f} %)."]
+          if pl["power"][far]["ci_low"] < 0.9 else []),
+        f"These {pl['n_truths']} truths (generator seed {pl['generator_seed']}) are the ones the "
+        "rule's divergence count was revised against: fresh truths would test it out of sample.",
         "Over the moves that keep every discrete setting at the truth's level it rules out "
         + ", ".join(f"{d}: {x['k']:.0f} of {x['n']:.0f}"
                     for d, x in pl["power_continuous_only"].items()) + ".",
@@ -104,7 +109,10 @@ def _answer(r: dict) -> list[str]:
         + ("they agree)." if fit["spread"]["agree"] else "the spread is the result)."),
         _converged(fit),
         *([f"The best fit sits on the prior's edge in {_edge_text(fit['edges'])} (reported, "
-           "the prior's range not widened)."] if fit["edges"] else []),
+           "the prior's range not widened: the fit and the verdict hold inside the prior's "
+           "box)."] if fit["edges"] else []),
+        *([f"It takes the end level of the discrete settings {', '.join(fit['edges_discrete'])}."]
+          if fit.get("edges_discrete") else []),
     ]
     ranking = [
         f"**The paper's ranking over the prior.** All nine orders as printed: "
@@ -112,7 +120,8 @@ def _answer(r: dict) -> list[str]:
         f"{_pct(po['iapid_first_all'])} (Clopper-Pearson over {po['n_points']} points).",
         *([f"PAWN's first tied group on the discrepancy holds an inert dummy setting and "
            f"{len(top)} settings, so it ranks none of them; "
-           + (f"{len(above)} lie above the dummy's bound ({', '.join(above)})."
+           + (f"{len(above)} have estimates above the dummy's upper bound ({', '.join(above)}), "
+              "yet their intervals overlap the dummy's: tied with it."
               if above else "none lies above the dummy's bound.")] if inert or not top else
           ["Settings that decide the discrepancy most (PAWN's first tied group, above an inert "
            "dummy setting): " + ", ".join(top) + "."]),
@@ -145,7 +154,8 @@ def _fair_short(f: dict) -> str:
     wt, d = f.get("where_all_track"), f.get("at_defaults")
     rest = []
     if wt:
-        rest.append(f"where every tuned arm tracks, {_arm(wt['best'])} "
+        rest.append(f"where every tuned arm tracks (plants chosen after the fact, from the "
+                    f"held-out runs), {_arm(wt['best'])} "
                     + ("is beaten by none" if wt["best_determined"] else "is the candidate"))
     if d:
         rest.append(f"at the defaults, {_arm(d['best'])} "
@@ -153,7 +163,8 @@ def _fair_short(f: dict) -> str:
     cells = f["held_out"]["cells"]
     failing = sorted({cells[i].split("@")[1] for n in f["ranking"]
                       for i, k in enumerate(f["arms"][n]["held_out"]["per_cell_failures"]) if k})
-    return (f"Tuned alike on held-out plants, {lead}"
+    return (f"Tuned by the shared stage (some adaptation settings stay fixed) on held-out "
+            f"plants, {lead}"
             + (f", a lead that rests on where tuned arms fail ({', '.join(failing)})"
                if failing else "")
             + ("; " + "; ".join(rest) if rest else "") + ".")
@@ -312,13 +323,13 @@ def _who(f: dict, where: str, arms: dict) -> str:
         for n, v in f["against_best"].items():
             by.setdefault(v["verdict"], []).append(n)
         said = "; ".join(f"{_names(ns)} {_WORSE[w]}" for w, ns in by.items())
-        return (f"Tuned alike, no arm beats {_arm(best)} {where}: against it {said}, at all "
-                "four pairings of the two arms' restarts.")
+        return (f"Tuned by the shared stage, no arm beats {_arm(best)} {where}: against it "
+                f"{said}, at all four pairings of the two arms' restarts.")
     by: dict[str, list[str]] = {}
     for n, v in f["against_best"].items():
         by.setdefault(v["verdict"], []).append(n)
     parts = [say.format(_names(by[w])) for w, say in _AGAINST.items() if w in by]
-    return (f"Tuned alike, no arm is shown best {where}. {_candidate(f, arms)}; but "
+    return (f"Tuned by the shared stage, no arm is shown best {where}. {_candidate(f, arms)}; but "
             f"{'; '.join(parts)}.")
 
 
@@ -347,7 +358,8 @@ def _beside(f: dict, ho: dict, arms: dict) -> list[str]:
     wt = f.get("where_all_track")
     if wt:
         plants = sorted({ho["cells"][i].split("@")[1] for i in wt["cells"]})
-        out.append(_who(wt, f"on the plants where every tuned arm tracks ({', '.join(plants)})",
+        out.append(_who(wt, f"on the plants where every tuned arm tracks ({', '.join(plants)}; "
+                        "chosen after the fact from the held-out runs)",
                         {n: {"held_out": summary_of(arms, n, wt["cells"])} for n in arms}))
     d = f.get("at_defaults")
     if d:
@@ -395,7 +407,15 @@ def _swap(f: dict) -> str:
             f"other's best settings (best restarts only). {x} over {y}: {said('as_tuned')} as "
             f"tuned, {said('both_at_x')} with both at {x}'s settings, {said('both_at_y')} with "
             f"both at {y}'s. Each law with the other's settings over itself with its own: {x} "
-            f"{said('x_swapped')}, {y} {said('y_swapped')}. So {read}.")
+            f"{said('x_swapped')}, {y} {said('y_swapped')}. So {read}."
+            + (" Each law does better with the other's settings than with its own: its own "
+               "tuning did not find its best, so the tuning, not the law, decides the pair as "
+               "tuned." if all(c[k]["word"] in _BETTER for k in ("x_swapped", "y_swapped"))
+               else ""))
+
+
+#: The words of a comparison in which the first arm does better.
+_BETTER = ("lower", "fails less", "better")
 
 
 def _fixed(f: dict) -> str:

@@ -115,11 +115,11 @@ LEVELS = {lv.name: lv for lv in (QUICK, MEDIUM, FULL)}
 #: --workers 2`, a 2-core machine, 2026-12-07; the log of the full level's stages is summarised
 #: here).  MEDIUM is what ``make calibration`` runs: the study within its 90-minute budget.
 TIMED = {
-    "medium": "4,860 s from an empty store on 2 workers, 201,516 runs",
+    "medium": "4,860 s from an empty store and an empty tuning cache on 2 workers, 201,516 runs",
     "full": "screening and design 15 min, planted truths 15 min, the emulator, its waves and "
             "30 recovery truths 27 min. The fit then took ~9 s per generation of 12 points: its "
-            "5 x 84 generations ~63 min, about 2 h in all with the verdict and fair tuning "
-            "(stopped in the fit's first restart)",
+            "5 x 84 generations ~63 min: over 2 h in all before the verdict and the fair "
+            "tuning (stopped in the fit's first restart; never completed)",
 }
 
 
