@@ -233,7 +233,7 @@ def calibration(cal: dict) -> Finding:
             f"({100 * cov['ci_low']:.1f}–{100 * cov['ci_high']:.1f} %, nominal "
             f"{100 * pl['nominal']:.0f} %) and rules out {int(pw['k'])} of {int(pw['n'])} points "
             f"{float(near):g} away in the unit cube (at a {100 * pl['delta']:.0f} % "
-            "discrepancy)"
+            "discrepancy" + _fresh_short(cal.get("planted_fresh"), near) + ")"
             + (": too loose to decide. " if pl["too_loose"] else ". ")
             + f"{passes} at a {100 * v['delta']:.0f} % model discrepancy (smallest maximum "
             f"implausibility {at['min_max_implausibility']:.2f}), "
@@ -283,3 +283,12 @@ def render(found: list[Finding]) -> list[str]:
     if strip:
         lines += [" ".join(f"![{n}](figures/{n})" for n in strip), ""]
     return lines
+
+
+def _fresh_short(fr: dict | None, far: str) -> str:
+    """The calibration rule out of sample (fresh planted truths): a clause, or nothing."""
+    if not fr:
+        return ""
+    pw = fr["power"][far]
+    return (f"; {fr['n_truths']} fresh truths: {int(fr['coverage']['k'])} accepted, "
+            f"{int(pw['k'])} ruled out" + (", too loose" if fr["too_loose"] else ""))

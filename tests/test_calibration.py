@@ -791,6 +791,13 @@ def test_quick_planted_truths_at_fixed_seeds(quick):
     assert old["0.1"]["power"]["0.3"]["k"] == 0 and old["0.1"]["too_loose"]
     assert not pl["too_loose"]
     assert pl["coverage"]["ci_low"] > 0 and pl["coverage"]["ci_high"] == 1.0
+    from analysis.calibration import rule  # the out-of-sample truths: other settings, other runs
+
+    fr = record["planted_fresh"]
+    assert fr["generator_seed"] == rule.FRESH_PLANT_SEED != pl["generator_seed"]
+    assert fr["truth_seeds"] == [rule.FRESH_TRUTH_SEED0, rule.FRESH_TRUTH_SEED0 + 2]
+    assert fr["max_implausibility_truth"] != pl["max_implausibility_truth"]
+    assert fr["threshold"] == pl["threshold"] and "truths_u" not in fr
 
 
 def test_check_catches_an_inconsistent_record(quick):
@@ -805,6 +812,10 @@ def test_check_catches_an_inconsistent_record(quick):
         calibration.check(bad)
     bad = copy.deepcopy(record)
     bad["planted"]["coverage"]["k"] -= 1  # a count that is not its implausibilities'
+    with pytest.raises(AssertionError):
+        calibration.check(bad)
+    bad = copy.deepcopy(record)
+    bad["planted_fresh"]["power"]["0.3"]["k"] -= 1  # the same, out of sample
     with pytest.raises(AssertionError):
         calibration.check(bad)
     bad = copy.deepcopy(record)

@@ -52,8 +52,7 @@ def _answer(r: dict) -> list[str]:
           [f"The 90 % power criterion at distance {far} holds at its point estimate only (its "
            f"interval reaches {100 * pl['power'][far]['ci_low']:.1f} %)."]
           if pl["power"][far]["ci_low"] < 0.9 else []),
-        f"These {pl['n_truths']} truths (generator seed {pl['generator_seed']}) are the ones the "
-        "rule's divergence count was revised against: fresh truths would test it out of sample.",
+        _fresh(pl, r.get("planted_fresh"), far),
         "Over the moves that keep every discrete setting at the truth's level it rules out "
         + ", ".join(f"{d}: {x['k']:.0f} of {x['n']:.0f}"
                     for d, x in pl["power_continuous_only"].items()) + ".",
@@ -145,6 +144,20 @@ def _answer(r: dict) -> list[str]:
                          rows)])  # fmt: skip
     return [" ".join(rule), " ".join(derive), " ".join(verdict), " ".join(closest),
             " ".join(ranking), by_delta]
+
+
+def _fresh(pl: dict, fr: dict | None, far: str) -> str:
+    """The rule out of sample: the fresh planted truths beside the ones it was revised on."""
+    said = (f"These {pl['n_truths']} truths (generator seed {pl['generator_seed']}) are the ones "
+            "the rule's divergence count was revised against")
+    if not fr:
+        return said + ": fresh truths would test it out of sample."
+    return (f"{said}. On {fr['n_truths']} fresh truths (generator seed "
+            f"{fr['generator_seed']}), drawn once it was fixed, it accepts the truth "
+            f"{fr['coverage']['k']:.0f} times ({_pct(fr['coverage'])}) and rules out "
+            f"{_pct(fr['power'][far])} at distance {far}."
+            + (" Out of sample it is too loose to decide (power below 90 % at that distance): "
+               "an acceptance by it says little; a rejection stands." if fr["too_loose"] else ""))
 
 
 def _fair_short(f: dict) -> str:
@@ -562,7 +575,7 @@ def notes(record: dict) -> str:
 #: What each level is, in the report (sentences after "Level: <name>,").
 LEVEL_NOTE = {
     "quick": "the tests' few points on short runs",
-    "medium": "the committed record and the study `make calibration` runs ({timed}). The "
+    "medium": "the committed record and the study `make calibration` runs. Its time: {timed}. The "
               "larger `--full` level ({full}) does not fit the 90-minute budget on 2 workers. "
               "Its stages there: {full_timed}",
     "full": "a larger study than the 90-minute budget allows on 2 workers (`--full`)",

@@ -69,7 +69,8 @@ from scipy import stats
 from analysis.calibration import prior
 from wmr.stats import clopper_pearson
 
-__all__ = ["LEVEL", "DISTANCES", "TRUTH_SEED0", "PLANT_SEED", "DELTAS", "DELTA", "RULES",
+__all__ = ["LEVEL", "DISTANCES", "TRUTH_SEED0", "PLANT_SEED", "FRESH_PLANT_SEED",
+           "FRESH_TRUTH_SEED0", "planted_fresh", "DELTAS", "DELTA", "RULES",
            "RULE", "DIVERGENCE_RULE", "DIVERGENCE_LEVEL", "divergence_score", "threshold",
            "per_number_threshold", "effective_dof", "implausibility", "CAP", "capped",
            "printed_round", "clopper_pearson", "proportion", "planted", "judge",
@@ -83,6 +84,11 @@ DISTANCES = (0.1, 0.2, 0.3)
 TRUTH_SEED0 = 100_000
 #: The generators of the planted settings and directions (truth t's: ``[PLANT_SEED, t]``).
 PLANT_SEED = 23
+#: Fresh planted truths, drawn once the rule was fixed (the first 100 served while its
+#: divergence count was revised): generator ``[FRESH_PLANT_SEED, t]``, "paper" runs at
+#: ``FRESH_TRUTH_SEED0 + t`` -- the rule's coverage and power out of sample.
+FRESH_PLANT_SEED = 2026
+FRESH_TRUTH_SEED0 = 300_000
 #: The model discrepancy (relative) of the verdict, and the values it is also shown at.
 DELTA = 0.1
 DELTAS = (0.0, 0.05, 0.1, 0.25)
@@ -251,7 +257,8 @@ def _discrete_kept(space, u, v) -> bool:
 
 
 def planted(ev, space, n_truths: int, rule_seeds: Sequence[int],
-            distances: Sequence[float] = DISTANCES, seed: int = PLANT_SEED) -> dict:
+            distances: Sequence[float] = DISTANCES, seed: int = PLANT_SEED,
+            truth_seed0: int = TRUTH_SEED0) -> dict:
     """The rule's coverage and power on ``n_truths`` planted truths in ``space``
     (``_calibration_stages.Space``), the rule's runs at ``rule_seeds``; at every discrepancy
     of :data:`DELTAS` with the default threshold, and with the earlier one (``rule="t"``) for
@@ -267,7 +274,7 @@ def planted(ev, space, n_truths: int, rule_seeds: Sequence[int],
                      zip(truths, away, strict=True)]).reshape(n_truths, len(distances))
     tasks = []
     for t, u in enumerate(truths):
-        tasks.append(space.task(u, (TRUTH_SEED0 + t,)))
+        tasks.append(space.task(u, (truth_seed0 + t,)))
         tasks.append(space.task(u, tuple(rule_seeds)))
         tasks += [space.task(v, tuple(rule_seeds)) for v, _ in away[t]]
     res = ev.evaluate(tasks, "planted truths")
@@ -279,7 +286,7 @@ def planted(ev, space, n_truths: int, rule_seeds: Sequence[int],
     keys = ("coverage", "coverage_all_finite", "power", "power_continuous_only",
             "power_given_accepted", "too_loose")
     return {"n_truths": n_truths, "rule_seeds": list(rule_seeds), "threshold": threshold(k),
-            "threshold_rule": RULE, "truth_seeds": [TRUTH_SEED0, TRUTH_SEED0 + n_truths - 1],
+            "threshold_rule": RULE, "truth_seeds": [truth_seed0, truth_seed0 + n_truths - 1],
             "generator_seed": seed, "delta": DELTA, "nominal": LEVEL, **head,
             "discrete_kept": kept.tolist(),
             "by_delta": {f"{dl:g}": {x: v for x, v in at[RULE, dl].items() if x in keys}
@@ -354,3 +361,13 @@ def judge(nums: np.ndarray, k_seeds: int, deltas: Sequence[float] = DELTAS,
                              "worst": [prior.NUMBER_NAMES[j] for j in order[:3]],
                              "implausibility": [float(x) for x in i]}  # fmt: skip
     return {"threshold": c, "threshold_rule": rule, "seeds": k_seeds, "by_delta": out}
+
+
+def planted_fresh(ev, space, n_truths: int, rule_seeds: Sequence[int]) -> dict:
+    """:func:`planted` on fresh truths (:data:`FRESH_PLANT_SEED`, :data:`FRESH_TRUTH_SEED0`),
+    less the per-truth arrays: the rule's coverage and power out of sample."""
+    out = planted(ev, space, n_truths, rule_seeds, seed=FRESH_PLANT_SEED,
+                  truth_seed0=FRESH_TRUTH_SEED0)
+    for key in ("truths_u", "discrete_kept", "by_delta_earlier_threshold"):
+        out.pop(key)
+    return out

@@ -8,7 +8,7 @@
 # **rule whose coverage and power are measured on planted truths**. The earlier record's
 # "0 of 4,096 points feasible" came from a 2-seed tolerance that rejected the truth 20 of 20
 # times; it is retracted. The study has its own command (`make calibration`, the level printed
-# below, 81 minutes from an empty store on 2 workers); this notebook reads the committed record
+# below, about 95 minutes from an empty store on 2 workers); this notebook reads the committed record
 # and reruns one small thing: the fitted scenarios, seed 0.
 # %%
 import json
