@@ -963,7 +963,7 @@ def test_fair_answer_names_every_verdict_against_a_best_not_shown_best():
     """The candidate best (by failures, then its own mean) can lose a paired comparison: the
     answer names that arm with its verdict, not an empty clause, and says why the candidate is
     the candidate from the record (its failures, and the arms that share the count)."""
-    from analysis.calibration.report import _who
+    from analysis.calibration.fair_report import _who
 
     def held(k):
         return {"held_out": {"tracking_failure": {"diverged": k, "n": 150}}}

@@ -7,6 +7,8 @@ from __future__ import annotations
 import math
 
 from analysis import common
+from analysis.calibration import fair_report
+from analysis.calibration.fair_report import span
 from analysis.calibration.rule import DIVERGENCE_LEVEL as RULE_LEVEL
 from analysis.calibration.waves import RECOVER
 from analysis.calibration.waves import VALID_WITHIN_3 as VALID
@@ -59,7 +61,7 @@ def _answer(r: dict) -> list[str]:
         "Around the truths it accepts, it rules out "
         + ", ".join(f"{d}: {x['k']:.0f} of {x['n']:.0f}"
                     for d, x in pl["power_given_accepted"].items()) + ".",
-        _fair_short(r["fair_tuning"]),
+        fair_report.short(r["fair_tuning"]),
     ]
     earlier, dkey = pl["by_delta_earlier_threshold"], f"{pl['delta']:g}"
     derive = [
@@ -83,8 +85,8 @@ def _answer(r: dict) -> list[str]:
         f"finite seeds. {pl['truths_with_diverged_runs']['n']} of {cov['n']:.0f} planted truths "
         f"had a diverged seed among their {r['rule']['K']}; the rule accepts "
         f"{pl['truths_with_diverged_runs']['accepted']} of them.",
-        f"The verdict judges its candidates at seeds {_span(ver['seeds'])}, none of which "
-        f"selected them (those were {_span(ver['selection_seeds'])}).",
+        f"The verdict judges its candidates at seeds {span(ver['seeds'])}, none of which "
+        f"selected them (those were {span(ver['selection_seeds'])}).",
     ]
     verdict = [
         "**Does any plausible setting reproduce Tables 1-3?** "
@@ -158,29 +160,6 @@ def _fresh(pl: dict, fr: dict | None, far: str) -> str:
             f"{_pct(fr['power'][far])} at distance {far}."
             + (" Out of sample it is too loose to decide (power below 90 % at that distance): "
                "an acceptance by it says little; a rejection stands." if fr["too_loose"] else ""))
-
-
-def _fair_short(f: dict) -> str:
-    """Who wins under fair tuning, in one sentence for the section's opening."""
-    lead = (f"no arm beats {_arm(f['best'])}" if f["best_determined"] else
-            f"no arm is shown best ({_arm(f['best'])} is the candidate)")
-    wt, d = f.get("where_all_track"), f.get("at_defaults")
-    rest = []
-    if wt:
-        rest.append(f"where every tuned arm tracks (plants chosen after the fact, from the "
-                    f"held-out runs), {_arm(wt['best'])} "
-                    + ("is beaten by none" if wt["best_determined"] else "is the candidate"))
-    if d:
-        rest.append(f"at the defaults, {_arm(d['best'])} "
-                    + ("is beaten by none" if d["best_determined"] else "is the candidate"))
-    cells = f["held_out"]["cells"]
-    failing = sorted({cells[i].split("@")[1] for n in f["ranking"]
-                      for i, k in enumerate(f["arms"][n]["held_out"]["per_cell_failures"]) if k})
-    return (f"Tuned by the shared stage (some adaptation settings stay fixed) on held-out "
-            f"plants, {lead}"
-            + (f", a lead that rests on where tuned arms fail ({', '.join(failing)})"
-               if failing else "")
-            + ("; " + "; ".join(rest) if rest else "") + ".")
 
 
 def _converged(fit: dict) -> str:
@@ -277,236 +256,6 @@ def _answer_sensitivity(r: dict) -> list[str]:
     ])]  # fmt: skip
 
 
-def _arm(name: str) -> str:
-    """An arm's label: its controller's, with the pose source when it is not the measured one."""
-    c, pose = name.split("@")
-    return controllers.label(c) + ("" if pose == "raw" else f" ({pose} pose)")
-
-
-def _ratio(p: dict) -> str:
-    if p["ci"] is None:
-        return "—"
-    return f"{p['ratio']:.3f} [{p['ratio_ci'][0]:.3f}, {p['ratio_ci'][1]:.3f}]"
-
-
-def _fails(s: dict) -> str:
-    d = s["tracking_failure"]
-    return f"{d['diverged']}/{d['n']}"
-
-
-def _names(names: list[str]) -> str:
-    return ", ".join(_arm(n) for n in names)
-
-
-#: How the answer names the arms of each verdict against a best shown best.
-_WORSE = {"fails more": "fail more", "higher": "are higher",
-          "worse": "fail more or are higher, depending on the restarts"}
-#: How the answer names the arms of each verdict against a best not shown best.
-_AGAINST = {"tie": "{} tie with it",
-            "equivalent": "{} are equivalent to it within 5 %",
-            "restart-dependent": "against {} the verdict depends on which restart is run",
-            "mixed": "{} track more accurately where both track but fail where it does not "
-                     "(mixed)",
-            "undetermined": "against {} it is undetermined",
-            "lower": "{} are lower than it at all four pairings",
-            "fails less": "{} fail less than it at all four pairings",
-            "better": "{} are lower or fail less than it at all four pairings"}  # fmt: skip
-
-
-def _candidate(f: dict, arms: dict) -> str:
-    """Why the candidate best is the candidate, from the record: its failures (and the arms
-    that share that count), then its mean log RMSE over its own tracking runs."""
-    best = f["best"]
-    d = arms[best]["held_out"]["tracking_failure"]
-    same = [n for n in f["ranking"][1:]
-            if arms[n]["held_out"]["tracking_failure"]["diverged"] == d["diverged"]]
-    fewest = f"{d['diverged']}/{d['n']} held-out runs, the fewest" + (
-        f" (as {_names(same)})" if same else "")
-    tail = (", and among those the lowest mean log RMSE over its own tracking runs"
-            if same else "")
-    return f"{_arm(best)} is the candidate: it fails to track on {fewest}{tail}"
-
-
-def _who(f: dict, where: str, arms: dict) -> str:
-    """The answer's sentence on who is best on the cells ``where`` names (``arms``: the arms'
-    held-out summaries on those cells)."""
-    best = f["best"]
-    if f["best_determined"]:
-        by: dict[str, list[str]] = {}
-        for n, v in f["against_best"].items():
-            by.setdefault(v["verdict"], []).append(n)
-        said = "; ".join(f"{_names(ns)} {_WORSE[w]}" for w, ns in by.items())
-        return (f"Tuned by the shared stage, no arm beats {_arm(best)} {where}: against it "
-                f"{said}, at all four pairings of the two arms' restarts.")
-    by: dict[str, list[str]] = {}
-    for n, v in f["against_best"].items():
-        by.setdefault(v["verdict"], []).append(n)
-    parts = [say.format(_names(by[w])) for w, say in _AGAINST.items() if w in by]
-    return (f"Tuned by the shared stage, no arm is shown best {where}. {_candidate(f, arms)}; but "
-            f"{'; '.join(parts)}.")
-
-
-def _by_plant(s: dict, cells: list[str]) -> str:
-    """An arm's tracking failures per plant (the cells ``scenario@plant``), the plants with
-    any."""
-    per: dict[str, int] = {}
-    for c, k in zip(cells, s["per_cell_failures"], strict=True):
-        per[c.split("@")[1]] = per.get(c.split("@")[1], 0) + k
-    return ", ".join(f"{p} {k}" for p, k in per.items() if k)
-
-
-def _order(f: dict) -> str:
-    """The candidate ranking with each consecutive verdict: ``A < B ? C``."""
-    sym = {"higher": "<", "fails more": "<", "worse": "<", "tie": "~", "equivalent": "~"}
-    out = _arm(f["ranking"][0])
-    for o in f["order"]:
-        out += f" {sym.get(o['verdict'], '?')} {_arm(o['pair'][1])}"
-    return out
-
-
-def _beside(f: dict, ho: dict, arms: dict) -> list[str]:
-    """What the ranking says where every arm tracks (the plants without a tuned failure) and
-    at the defaults: the failures' share of the verdict."""
-    out = []
-    wt = f.get("where_all_track")
-    if wt:
-        plants = sorted({ho["cells"][i].split("@")[1] for i in wt["cells"]})
-        out.append(_who(wt, f"on the plants where every tuned arm tracks ({', '.join(plants)}; "
-                        "chosen after the fact from the held-out runs)",
-                        {n: {"held_out": summary_of(arms, n, wt["cells"])} for n in arms}))
-    d = f.get("at_defaults")
-    if d:
-        vs = d["against_best"]
-        said = "; ".join(f"{_arm(n)} {v['word']}" for n, v in vs.items())
-        out.append(f"At their defaults (untuned) {_arm(d['best'])} is the candidate "
-                   + ("and every other arm is higher or fails more against it" if
-                      d["best_determined"] else "but not shown best") + f" ({said}).")
-    return out
-
-
-def summary_of(arms: dict, name: str, cells: list[int]) -> dict:
-    """An arm's tuned held-out failures on the main cells ``cells`` (positions), from its
-    per-cell counts (for :func:`_candidate`'s sentence)."""
-    s = arms[name]["held_out"]
-    k = sum(s["per_cell_failures"][i] for i in cells)
-    n = s["tracking_failure"]["n"] * len(cells) // len(s["per_cell_failures"])
-    return {"tracking_failure": {"diverged": k, "n": n}}
-
-
-def _edges(f: dict) -> str:
-    """The arms whose best tuning ends on its box's edge (DESIGN §7.2: flagged, not hidden)."""
-    arms = f["arms"]
-    on = [f"{_arm(n)} {len(arms[n]['edges'])} of {len(arms[n]['free'])}"
-          for n in f["ranking"] if arms[n]["edges"]]
-    return ("Settings whose tuned optimum lies on its box's edge (reported, the boxes not "
-            f"widened): {', '.join(on)}." if on else "No tuned optimum lies on a box's edge.")
-
-
-def _swap(f: dict) -> str:
-    """The settings swap of the two laws with the same free settings."""
-    sw = f["swap"]
-    x, y = (_arm(n) for n in sw["arms"])
-
-    def said(k: str) -> str:
-        v = sw["comparisons"][k]
-        return f"{_ratio(v)} ({v['word']}, {v['common_cells']} cells)"
-
-    c = sw["comparisons"]
-    common = [c["both_at_x"]["word"], c["both_at_y"]["word"]]
-    read = ("at common settings the two laws are not told apart"
-            if all(w in ("tie", "equivalent", "undetermined", "mixed") for w in common) else
-            f"at common settings {x} is '{common[0]}' at {x}'s and '{common[1]}' at {y}'s")
-    return (f"The two laws with the same free settings, {x} and {y}, were also run with each "
-            f"other's best settings (best restarts only). {x} over {y}: {said('as_tuned')} as "
-            f"tuned, {said('both_at_x')} with both at {x}'s settings, {said('both_at_y')} with "
-            f"both at {y}'s. Each law with the other's settings over itself with its own: {x} "
-            f"{said('x_swapped')}, {y} {said('y_swapped')}. So {read}."
-            + (" Each law does better with the other's settings than with its own: its own "
-               "tuning did not find its best, so the tuning, not the law, decides the pair as "
-               "tuned." if all(c[k]["word"] in _BETTER for k in ("x_swapped", "y_swapped"))
-               else ""))
-
-
-#: The words of a comparison in which the first arm does better.
-_BETTER = ("lower", "fails less", "better")
-
-
-def _fixed(f: dict) -> str:
-    """Each arm's numeric settings the tuning left at their defaults (the record's)."""
-    arms = f["arms"]
-    return "; ".join(f"{_arm(n)}: {', '.join(arms[n]['fixed'])}" for n in f["ranking"]
-                     if arms[n]["fixed"]) or "none"  # fmt: skip
-
-
-def _answer_fair(r: dict) -> list[str]:
-    f = r["fair_tuning"]
-    arms, best, b, ho = f["arms"], f["best"], f["budget"], f["held_out"]
-    pa = f["paper_arm"]
-    failing = [n for n in f["ranking"] if arms[n]["held_out"]["tracking_failure"]["diverged"]]
-    vs = {**f["against_best"], pa["arm"]: pa["against_best"]}
-    rows = [[_arm(n), str(len(arms[n]["free"])), str(arms[n]["evaluations"]),
-             "yes" if arms[n]["agreement"]["agree"] else "no", str(len(arms[n]["edges"])),
-             _fails(arms[n]["held_out"]), _fails(arms[n]["other_held_out"]),
-             fmt(arms[n]["held_out"]["median_rmse"]),
-             fmt(arms[n]["other_held_out"]["median_rmse"]),
-             fmt(arms[n]["default_held_out"]["median_rmse"]),
-             "—" if n == best else _ratio(vs[n]["tuned"]),
-             "—" if n == best else str(vs[n]["tuned"]["common_cells"]),
-             "—" if n == best else ", ".join(vs[n]["pairings"].values()),
-             "candidate best" if n == best else vs[n]["verdict"]]
-            for n in [*f["ranking"], pa["arm"]]]  # fmt: skip
-    where = (f"on the paper's three scenarios over {len(ho['plants'])} held-out simulated "
-             "plants")
-    worse = [n for n in failing
-             if arms[n]["default_held_out"]["tracking_failure"]["diverged"] == 0]
-    per_plant = "; ".join(f"{_arm(n)} {_fails(arms[n]['held_out'])} "
-                          f"({_by_plant(arms[n]['held_out'], ho['cells'])})" for n in failing)
-    lines = [_who(f, where, arms),
-             (f"Held out, arms fail to track (diverged, or RMSE after the transient above "
-              f"{ho['tracking_m']:g} m) on these runs, by plant: {per_plant}." if failing else
-              "No arm fails to track held out."),
-             *([f"At their defaults {_names(worse)} track every held-out run; tuned "
-                "on the training plants, they do not."] if worse else []),
-             *_beside(f, ho, arms),
-             f"The paper's set-up, {_arm(pa['arm'])}, is '{pa['against_raw']['verdict']}' "
-             f"against the same law on the measured pose and '{pa['against_best']['verdict']}' "
-             f"against {_arm(best)}.", _swap(f), _edges(f)]
-    ap = f.get("apart")
-    if ap:
-        held = {n: {"held_out": s} for n, s in ap["held_out"].items()}
-        fails = ", ".join(f"{_arm(n)} {_fails(ap['held_out'][n])}" for n in ap["ranking"])
-        lines.append(_who(ap, "on the MuJoCo robot (compared apart: "
-                              f"{', '.join(ap['plants'])})", held)
-                     + f" Failures there: {fails}.")
-    return ["\n".join([
-        "**Who wins under fair tuning?** " + " ".join(lines), "",
-        f"Candidate order (<: told apart at all four restart pairings, ~: tied, ?: "
-        f"restart-dependent, mixed or undetermined): {_order(f)}.", "",
-        "Every arm acts on the measured pose, so the arms differ only in the law. Each arm's "
-        f"free settings were tuned by the shared stage (analysis/tuning.py) with "
-        f"{b['per_setting']} evaluations per setting per restart and {b['restarts']} CMA-ES "
-        f"restarts. Left at their defaults (not free): {_fixed(f)}. Training used the regime "
-        f"study's {len(b['training'])} trajectory-plant pairs "
-        f"({', '.join(b['training'])}) at seeds {_span(b['train_seeds'])}: other members of the "
-        "held-out trajectories' families, on plants with some of the held-out mechanisms at "
-        "other magnitudes (analysis/calibration/fair.py says which).",
-        f"Held out: the {len(ho['cells'])} cells ({', '.join(ho['plants'])}; the skid outward) "
-        f"at seeds {_span(b['test_seeds'])}, each arm at its best restart, its runner-up and "
-        "its defaults. Failing to track is its own endpoint, compared seed by seed: the cells "
-        "where one arm fails and the other tracks, minus the reverse, tested by an exact "
-        "sign-flip test over the seeds.",
-        "A ratio is the geometric mean over seeds of an arm's RMSE over the candidate best's, "
-        "on the cells where both track at every seed (their number beside it), with its 95 % "
-        "t interval. The four words are the verdicts at the pairings best/best, "
-        "best/runner-up, runner-up/best and runner-up/runner-up; 'worse' when they differ but "
-        "each says higher or fails more.",
-        "", *common.md_table(["arm", "free settings", "evaluations", "restarts agree",
-                              "optimum on an edge", "fail to track", "(runner-up)",
-                              "median RMSE [m]", "(runner-up)", "at defaults [m]",
-                              "ratio to the candidate best [95 % CI]", "cells",
-                              "at the four pairings", "verdict"], rows)])]  # fmt: skip
-
-
 def _vol(x: float) -> str:
     return f"{100 * x:.2g} %"
 
@@ -538,7 +287,7 @@ def _answer_sequential(r: dict) -> list[str]:
         + (f"; the least implausible point scores {pap['least_implausibility']:.2f} on the "
            f"emulator against the threshold {seq['threshold']:.2f}, and "
            f"{pap['least_direct']['max_implausibility']:.2f} when run at seeds "
-           f"{_span(pap['least_direct']['seeds'])} and judged by the rule itself."
+           f"{span(pap['least_direct']['seeds'])} and judged by the rule itself."
            if "least_implausibility" in pap else
            ": no sampled point is left, so none is plausible."),
         f"For a planted truth wave 0 keeps a median {_vol(w0['retained_volume_median'])} of the "
@@ -557,7 +306,7 @@ def notes(record: dict) -> str:
     (Markdown; ``analysis.prose``'s rule)."""
     c = record["cost"]
     out = _answer(record) + _answer_tables(record) + _answer_ranking(record)
-    out += _answer_sequential(record) + _answer_sensitivity(record) + _answer_fair(record)
+    out += _answer_sequential(record) + _answer_sensitivity(record) + fair_report.answer(record)
     sizes = (f"{record['planted']['n_truths']} planted truths, {record['points']['n']:,} design "
              f"points and {len(record['best_fit']['restarts'])} CMA-ES restarts")
     out.append(f"**Level: {record['level']}** ({sizes}), {_level_note(record)}. Cost: "
@@ -608,11 +357,6 @@ def table(record: dict) -> str:
     return "\n".join(common.md_table(header, rows)) + "\n"
 
 
-def _span(seeds: list[int]) -> str:
-    """Seeds as ``a-b`` when consecutive, else listed."""
-    if len(seeds) > 2 and list(seeds) == list(range(seeds[0], seeds[-1] + 1)):
-        return f"{seeds[0]}-{seeds[-1]}"
-    return ", ".join(map(str, seeds))
 
 
 def _edge_text(edges: list[dict]) -> str:
