@@ -225,8 +225,9 @@ def calibration(cal: dict) -> Finding:
     widest = max(v["by_delta"], key=float)  # the largest discrepancy shown (a key: a constant)
     a9, ia = po["all_nine"], po["iapid_first_all"]
     n_ok = at["count"]
-    passes = (f"{n_ok} of the {v['n_candidates']} settings examined pass it"
-              if n_ok else f"None of the {v['n_candidates']} settings examined passes it")
+    passes = (f"{n_ok} of the {v['n_candidates']} settings examined pass"
+              if n_ok else f"None of the {v['n_candidates']} settings examined passes")
+    there = "that discrepancy"  # the verdict's is the planted truths' (calibration.check)
     spread = fit["spread"]
     text = (f"The feasibility rule (threshold {v['threshold']:.2f}, Šidák over 36 numbers) "
             f"accepts a planted truth {int(cov['k'])} of {int(cov['n'])} times "
@@ -235,7 +236,7 @@ def calibration(cal: dict) -> Finding:
             f"{float(near):g} away in the unit cube (at a {100 * pl['delta']:.0f} % "
             "discrepancy" + _fresh_short(cal.get("planted_fresh"), near) + ")"
             + (": too loose to decide. " if pl["too_loose"] else ". ")
-            + f"{passes} at a {100 * v['delta']:.0f} % model discrepancy (smallest maximum "
+            + f"{passes} at {there} (smallest maximum "
             f"implausibility {at['min_max_implausibility']:.2f}), "
             f"{v['by_delta'][widest]['count']} at {100 * float(widest):.0f} %"
             + (f"; the fit's {len(fit['restarts'])} restarts disagree (spread "
@@ -290,5 +291,7 @@ def _fresh_short(fr: dict | None, far: str) -> str:
     if not fr:
         return ""
     pw = fr["power"][far]
+    at = (fr.get("resolves_at") or {}).get("point")
     return (f"; {fr['n_truths']} fresh truths: {int(fr['coverage']['k'])} accepted, "
-            f"{int(pw['k'])} ruled out" + (", too loose" if fr["too_loose"] else ""))
+            f"{int(pw['k'])} ruled out" + (", too loose" if fr["too_loose"] else "")
+            + (f", 90 % from {at:g}" if at and float(at) > float(far) else ""))

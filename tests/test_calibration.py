@@ -152,6 +152,32 @@ def test_discrepancy_closed_forms():
 # Step 3: the methods (no runs)
 
 
+def test_a_diverged_run_is_never_averaged_into_a_tracking_output():
+    """One seed's run of backstepping on the second scenario diverged (NaN row): its mean log
+    RMSE, its margin, the rms log ratio and the tau are NaN for that seed; IAPID's log RMSE
+    and the other margins keep run_outputs's values; the design summary's seed mean of the
+    numbers that run gives is NaN, and the others are the plain means."""
+    from analysis.calibration import stages
+
+    rng = np.random.default_rng(3)
+    arr = np.abs(rng.normal(0.1, 0.02, (2, 12, 5)))  # (seeds, 3 scenarios x 4 laws, cols)
+    arr[1, 4 + 1, :4] = np.nan  # seed 1, scenario 1, backstepping (controller 1)
+    y, t = stages.run_outputs(arr), stages.tracked_outputs(arr)
+    names = stages.OUTPUTS
+    assert np.array_equal(t[0], y[0])
+    nan = {n for n, v in zip(names, t[1], strict=True) if np.isnan(v)}
+    assert nan == {"log_rmse:backstepping", "margin:backstepping", "rms_log_ratio",
+                   "kendall_tau"}  # fmt: skip
+    keep = [i for i, n in enumerate(names) if n not in nan]
+    assert np.array_equal(t[1, keep], y[1, keep])
+    nums = np.stack([stages.numbers(arr)])
+    div = np.stack([stages.diverged(arr)])
+    summ = stages._summary(nums, div)
+    gone = np.isnan(summ["mean"][0])
+    assert gone.sum() == 3 and np.array_equal(gone, div[0].any(axis=0))
+    assert np.array_equal(summ["mean"][0, ~gone], nums[0].mean(axis=0)[~gone])
+
+
 def test_morris_design_moves_each_setting_once_by_delta():
     u, order, up, delta = methods.morris_design(5, 7, levels=4, seed=3)
     assert u.shape == (7, 6, 5) and delta == pytest.approx(2 / 3)

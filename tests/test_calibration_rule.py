@@ -158,6 +158,24 @@ def test_pawn_matches_salib_and_ranks_a_linear_function():
     assert sorted(out["ties"][2]) == ["c", "dummy"]  # the inert setting ties with the dummy
 
 
+def test_pawn_analyses_each_output_on_its_finite_rows():
+    """A NaN row (a value not defined, e.g. a diverged run's error) is left out of that
+    output only: the settings' indices are those of the finite rows, ``n`` counts them, the
+    other output keeps every row; too few finite rows give None."""
+    from analysis.calibration import pawn
+
+    rng = np.random.default_rng(1)
+    X = rng.random((400, 2))
+    y = 3 * X[:, 0] + 0.1 * rng.standard_normal(400)
+    gone = X[:, 1] > 0.8  # undefined where the second setting is high (not at random)
+    Y = np.column_stack([np.where(gone, np.nan, y), y, np.where(X[:, 0] < 0.97, np.nan, y)])
+    out = pawn.pawn(X, Y, ["a", "b"], ["cond", "all", "rare"], resamples=10)
+    assert out["cond"]["n"] == int((~gone).sum()) and out["all"]["n"] == 400
+    ref = pawn.pawn_median(X[~gone], y[~gone])
+    assert [out["cond"]["indices"][k]["index"] for k in "ab"] == pytest.approx(ref, abs=1e-15)
+    assert out["cond"]["above_dummy"] == ["a"] and out["rare"] is None
+
+
 def test_pawn_ties_do_not_chain():
     """Intervals a [0.5, 0.7], b [0.35, 0.55], c [0.2, 0.4]: b overlaps a and c, c does not
     overlap a; the leader rule groups {a, b} and starts a new group at c (a chain of overlaps

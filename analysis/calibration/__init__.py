@@ -181,8 +181,9 @@ def _g(x) -> str:
 
 def _points(des: dict, space: stages.Space, out: Path) -> dict:
     """Write the design's points (``results/calibration_points.csv``: each varied setting's
-    value, the rms and max |log ratio| of the seed means, the diverged runs) and return the
-    record's summary of them."""
+    value, the rms and max |log ratio| of the seed means -- ``nan`` at a point with a diverged
+    run, whose runs are counted in ``n_diverged`` instead -- and return the record's summary
+    of them."""
     from wmr.io import write_csv
 
     values = [space.values(u) for u in des["u"]]
@@ -192,12 +193,12 @@ def _points(des: dict, space: stages.Space, out: Path) -> dict:
              _g(des["max_abs_log_ratio"][i]), int(n_div[i])]
             for i, v in enumerate(values)]  # fmt: skip
     write_csv(Path(out) / "results" / POINTS_FILE, header, rows)
-    best = int(np.argmin(des["rms_log_ratio"]))
+    best = int(np.nanargmin(des["rms_log_ratio"]))  # NaN: a point with a diverged run
     return {"n": int(len(des["u"])), "file": f"results/{POINTS_FILE}", "columns": header,
             "design": "scrambled Sobol (scipy.stats.qmc.Sobol, seed "
             f"{stages.DESIGN_SEED}): A and B, {len(des['A'])} points each, the halves of a "
             f"sequence in 2 x {len(space.names)} dimensions", "varied": list(space.names),
-            "min_rms_log_ratio": float(des["rms_log_ratio"].min()),
+            "min_rms_log_ratio": float(np.nanmin(des["rms_log_ratio"])),
             "min_objective": float(des["objective"].min()),
             "best_point": {"index": best, "rms_log_ratio": float(des["rms_log_ratio"][best])},
             "n_diverged_points": int(np.sum(n_div > 0)),
@@ -349,7 +350,7 @@ def run(out, *, quick: bool = False, workers: int | None = None, full: bool = Fa
         progress: bool | None = None, level: str | None = None) -> dict:  # fmt: skip
     """The study into ``out``: ``quick`` a few points on short runs (tests); ``full`` (or
     ``level``: quick, medium, full) recomputes everything (on two cores the medium level, the
-    committed record, about 5,700 s from an empty store; the full level over 2 h: ``stages.TIMED``;
+    committed record, about 6,300 s from an empty store; the full level over 2 h: ``stages.TIMED``;
     the store resumes); otherwise the full or medium
     record in ``out`` or, failing that, the repository's committed one is re-rendered
     (figures, table; ``wmr reproduce`` stays short), and only without any record is the
@@ -405,7 +406,7 @@ def check(record: dict) -> None:
     for j, (key, pw) in enumerate(pl["power"].items()):
         assert pw["k"] == sum(r[j] > pl["threshold"] for r in pl["max_implausibility_away"])
         assert pw["ci_low"] <= pw["p"] <= pw["ci_high"], (key, pw)
-    assert pl["too_loose"] == (pl["power"][f"{max(rule.DISTANCES):g}"]["p"] < 0.9)
+    assert pl["too_loose"] == (pl["power"][f"{rule.DECIDE_AT:g}"]["p"] < 0.9)
     for j, key in enumerate(pl["power"]):  # the moves that kept every discrete setting's level
         sel = [t for t, kept in enumerate(pl["discrete_kept"]) if kept[j]]
         cont = pl["power_continuous_only"][key]
@@ -425,14 +426,19 @@ def check(record: dict) -> None:
         assert fr["coverage"]["n"] == fr["n_truths"] == len(fr["max_implausibility_truth"])
         assert fr["coverage"]["k"] == sum(i <= fr["threshold"]
                                           for i in fr["max_implausibility_truth"])
+        assert set(fr["power"]) == {f"{d:g}" for d in rule.FRESH_DISTANCES}, fr["power"]
         for j, pw in enumerate(fr["power"].values()):
             assert pw["k"] == sum(r[j] > fr["threshold"] for r in fr["max_implausibility_away"])
+        assert fr["too_loose"] == (fr["power"][f"{rule.DECIDE_AT:g}"]["p"] < 0.9)
+        reach = [float(d) for d, pw in fr["power"].items() if pw["p"] >= 0.9]
+        assert fr["resolves_at"]["point"] == (min(reach) if reach else None), fr["resolves_at"]
     assert "calibration_power.png" in record["figures"], record["figures"]  # the power figure
     ver = record["verdict"]
     for key, v in ver["by_delta"].items():
         ok = [c["source"] for c in ver["candidates"]
               if c["rule"]["by_delta"][key]["max_implausibility"] <= ver["threshold"]]
         assert v["not_ruled_out"] == ok and v["count"] == len(ok), key
+    assert ver["delta"] == pl["delta"] == rule.DELTA, (ver["delta"], pl["delta"])
     assert ver["answer"] == ("yes" if ver["by_delta"][f"{ver['delta']:g}"]["count"]
                              else "none of the candidates")
     fit = record["best_fit"]

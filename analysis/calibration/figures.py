@@ -15,25 +15,30 @@ STEM = "calibration"
 
 def power_curve(record: dict):
     """The rule on planted truths: acceptance at the truth (coverage) and rejection at unit-cube
-    distances from it (power), with exact intervals; right: max implausibility at the truth
-    against the threshold."""
+    distances from it (power), with exact intervals, for the truths the rule was revised
+    against and the fresh ones; right: max implausibility at the (first) truths against the
+    threshold."""
     import matplotlib.pyplot as plt
 
     pl = record["planted"]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.0), layout="constrained")
-    d = [0.0] + [float(k) for k in pl["power"]]
-    ps = [pl["coverage"]] + list(pl["power"].values())
-    y = [1 - pl["coverage"]["p"]] + [p["p"] for p in ps[1:]]
-    lo = [1 - pl["coverage"]["ci_high"]] + [p["ci_low"] for p in ps[1:]]
-    hi = [1 - pl["coverage"]["ci_low"]] + [p["ci_high"] for p in ps[1:]]
     ax = axes[0]
-    ax.errorbar(d, y, yerr=[np.array(y) - lo, np.array(hi) - y], fmt="o-", capsize=4)
+    sets = [(pl, "the truths the rule was revised against", 0.0)]
+    if record.get("planted_fresh"):
+        sets.append((record["planted_fresh"], "fresh truths (out of sample)", 0.006))
+    for x, label, shift in sets:
+        d = np.array([0.0] + [float(k) for k in x["power"]]) + shift
+        y = np.array([1 - x["coverage"]["p"]] + [p["p"] for p in x["power"].values()])
+        lo = [1 - x["coverage"]["ci_high"]] + [p["ci_low"] for p in x["power"].values()]
+        hi = [1 - x["coverage"]["ci_low"]] + [p["ci_high"] for p in x["power"].values()]
+        ax.errorbar(d, y, yerr=[y - lo, hi - y], fmt="o-", capsize=4, ms=4,
+                    label=f"{label}, {x['n_truths']}")  # fmt: skip
     ax.axhline(0.05, color="tab:green", ls=":", label="nominal 5 % false rejection")
     ax.axhline(0.10, color="tab:red", ls=":", label="10 % (coverage >= 90 %)")
     ax.axhline(0.90, color="0.4", ls="--", label="90 % power")
     ax.set(xlabel="unit-cube distance from the planted truth", ylabel="share ruled out",
-           ylim=(-0.02, 1.02), title=f"{pl['n_truths']} planted truths, K = "
-           f"{len(pl['rule_seeds'])} seeds (Clopper-Pearson 95 %)")  # fmt: skip
+           ylim=(-0.02, 1.02), title=f"planted truths, K = {len(pl['rule_seeds'])} seeds "
+           "(Clopper-Pearson 95 %)")  # fmt: skip
     ax.legend(fontsize=7)
     ax = axes[1]
     it = np.array(pl["max_implausibility_truth"])
@@ -92,17 +97,17 @@ def _top_settings(record: dict, k: int = 6) -> list[str]:
 
 
 def projections(record: dict, points: dict):
-    """The design's rms log ratio against each of the most influential settings, coloured by
-    the diverged runs; the CMA-ES restarts' ends starred.  ``points``: the points file as
-    columns (``calibration.read_points``)."""
+    """The design's rms log ratio against each of the most influential settings (a point with
+    a diverged run has none: it is drawn as a cross on the top edge); the CMA-ES restarts'
+    ends starred.  ``points``: the points file as columns (``calibration.read_points``)."""
     import matplotlib.pyplot as plt
 
     pts = record["points"]
     top = _top_settings(record)
-    rms = np.array(points["rms_log_ratio"])
-    nd = np.array(points["n_diverged"])
+    rms = np.array(points["rms_log_ratio"], dtype=float)
+    div = np.array(points["n_diverged"]) > 0
+    top_edge = np.nanmax(rms) * 1.05
     fig, axes = plt.subplots(2, 3, figsize=(12, 6.5), layout="constrained", squeeze=False)
-    sc = None
     for ax, name in zip(axes.flat, top, strict=False):
         vals = points[name]
         numeric = all(isinstance(v, float) for v in vals)
@@ -116,7 +121,10 @@ def projections(record: dict, points: dict):
             shown = [str(e).lower() if isinstance(e, bool) else str(e) for e in ends]
             fx = np.array([levels.index(e) if e in levels else np.nan for e in shown])
             ax.set_xticks(range(len(levels)), levels)
-        sc = ax.scatter(xv, rms, c=nd, s=4, cmap="viridis", alpha=0.6)
+        ax.scatter(xv[~div], rms[~div], s=4, color="tab:blue", alpha=0.6,
+                   label="every run tracked")  # fmt: skip
+        ax.scatter(xv[div], np.full(div.sum(), top_edge), marker="x", s=14, color="tab:orange",
+                   label=f"a run diverged ({div.sum()} points)")  # fmt: skip
         ax.scatter(fx, [r["rms_log_ratio"] for r in record["best_fit"]["restarts"]],
                    marker="*", s=120, color="tab:red", edgecolors="k", zorder=4)  # fmt: skip
         prior = record["prior"][name]
@@ -125,8 +133,8 @@ def projections(record: dict, points: dict):
         ax.set(xlabel=f"{name} [{prior['unit']}]", ylabel="rms log ratio")
     for ax in list(axes.flat)[len(top):]:
         ax.set_axis_off()
-    if sc is not None:
-        fig.colorbar(sc, ax=axes, label="diverged runs at the point", shrink=0.8)
+    if top:
+        axes.flat[0].legend(fontsize=7, loc="lower right")
     fig.suptitle(f"design of {pts['n']} points: discrepancy against the most influential "
                  "settings (PAWN); stars: the CMA-ES restarts' ends", fontsize=10)
     return fig

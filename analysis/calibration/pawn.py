@@ -54,15 +54,19 @@ def pawn_median(X: np.ndarray, y: np.ndarray, slices: int = SLICES) -> np.ndarra
 def pawn(X: np.ndarray, Y: np.ndarray, names, outputs, seed: int = 0,
          resamples: int = RESAMPLES, level: float = 0.95) -> dict:  # fmt: skip
     """PAWN indices of every output (columns of ``Y``, (n, s)) for the settings ``names``
-    (columns of ``X``) and a dummy, with bootstrap intervals and ties."""
-    rng = np.random.default_rng(seed)
-    n = X.shape[0]
-    Xd = np.column_stack([X, rng.random(n)])
+    (columns of ``X``) and a dummy, with bootstrap intervals and ties.  Each output is
+    analysed on its finite rows (their number is its ``n``; NaN marks a value that is not
+    defined, such as a tracking error of a diverged run); ``None`` when it has fewer than
+    ``2 x SLICES`` of them or they are constant.  The dummy column is drawn from ``seed``;
+    output k's bootstrap and null from ``[seed, k]``."""
+    Xall = np.column_stack([X, np.random.default_rng(seed).random(X.shape[0])])
     q = [(1 - level) / 2, (1 + level) / 2]
     out = {}
     for k, o in enumerate(outputs):
-        y = Y[:, k]
-        if not np.all(np.isfinite(y)) or np.ptp(y) == 0:
+        rng = np.random.default_rng([seed, k])  # each output's own: the others do not move it
+        ok = np.isfinite(Y[:, k])
+        y, Xd, n = Y[ok, k], Xall[ok], int(ok.sum())
+        if n < 2 * SLICES or np.ptp(y) == 0:
             out[o] = None
             continue
         est = pawn_median(Xd, y)
@@ -78,7 +82,7 @@ def pawn(X: np.ndarray, Y: np.ndarray, names, outputs, seed: int = 0,
         ix = {nm: {"index": float(est[i]), "low": float(lo[i]), "high": float(hi[i])}
               for i, nm in enumerate([*names, "dummy"])}  # fmt: skip
         floor = float(np.quantile(null, 0.95))
-        out[o] = {"indices": ix, "dummy_high": floor,
+        out[o] = {"n": n, "indices": ix, "dummy_high": floor,
                   "above_dummy": [nm for nm in names if ix[nm]["index"] > floor],
                   "ties": ties(ix)}  # fmt: skip
     return out

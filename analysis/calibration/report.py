@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 
 from analysis import common
-from analysis.calibration import fair_report
+from analysis.calibration import fair_report, prior
 from analysis.calibration.fair_report import span
 from analysis.calibration.rule import DIVERGENCE_LEVEL as RULE_LEVEL
 from analysis.calibration.waves import RECOVER
@@ -121,8 +121,10 @@ def _answer(r: dict) -> list[str]:
         f"{_pct(po['iapid_first_all'])} (Clopper-Pearson over {po['n_points']} points).",
         *([f"PAWN's first tied group on the discrepancy holds an inert dummy setting and "
            f"{len(top)} settings, so it ranks none of them; "
-           + (f"{len(above)} have estimates above the dummy's upper bound ({', '.join(above)}), "
-              "yet their intervals overlap the dummy's: tied with it."
+           + (f"{len(above)} {'has an estimate' if len(above) == 1 else 'have estimates'} above "
+              f"the dummy's upper bound ({', '.join(above)}), yet "
+              f"{'its interval overlaps' if len(above) == 1 else 'their intervals overlap'} the "
+              "dummy's: tied with it."
               if above else "none lies above the dummy's bound.")] if inert or not top else
           ["Settings that decide the discrepancy most (PAWN's first tied group, above an inert "
            "dummy setting): " + ", ".join(top) + "."]),
@@ -159,7 +161,25 @@ def _fresh(pl: dict, fr: dict | None, far: str) -> str:
             f"{fr['coverage']['k']:.0f} times ({_pct(fr['coverage'])}) and rules out "
             f"{_pct(fr['power'][far])} at distance {far}."
             + (" Out of sample it is too loose to decide (power below 90 % at that distance): "
-               "an acceptance by it says little; a rejection stands." if fr["too_loose"] else ""))
+               "an acceptance by it says little; a rejection stands." if fr["too_loose"] else "")
+            + _resolution(fr, far))
+
+
+def _resolution(fr: dict, far: str) -> str:
+    """How far apart the rule tells settings, out of sample: its power at the fresh truths'
+    longer distances and the first distance where it reaches 90 %."""
+    longer = {d: x for d, x in fr["power"].items() if float(d) > float(far)}
+    if not longer:
+        return ""
+    res = fr["resolves_at"]
+    where = (f"it reaches {100 * res['target']:.0f} % at distance {res['point']:g}"
+             + (f" (its whole interval at {res['interval']:g})" if res["interval"] else
+                " (at its point estimate; no measured distance has its whole interval there)")
+             if res["point"] else
+             f"it reaches {100 * res['target']:.0f} % at no measured distance")
+    return (" Further out it rules out " + ", ".join(f"{d}: {_pct(x)}" for d, x in
+                                                     longer.items())
+            + f": {where}, the resolution the verdict has in the unit cube.")
 
 
 def _converged(fit: dict) -> str:
@@ -241,17 +261,23 @@ def _answer_sensitivity(r: dict) -> list[str]:
         x = sen["indices"].get(o)
         if x:
             ties = [*x["ties"][:2], [], []][:2]
-            rows.append([o, *[group(g) if g else "—" for g in ties], len(x["above_dummy"]),
+            rows.append([o, x.get("n", sen["n"]), *[group(g) if g else "—" for g in ties],
+                         len(x["above_dummy"]),
                          f"{x['dummy_high']:.3f}"])  # fmt: skip
     scr = r["screening"]
     fixed = [n for n in r["prior"] if not r["prior"][n].get("varied", True)]
     return ["\n".join([
         "**Which unstated settings decide it?** Morris screening "
         f"({scr['trajectories']} trajectories, {scr['points']} points) fixed {len(fixed)} "
-        f"settings ({', '.join(fixed) or 'none'}). PAWN indices on the {sen['n']} design "
-        "points are median KS statistics, bounded in [0, 1]. The settings of a tied group have "
-        "overlapping intervals; the first two groups are shown, at most six names each:", "",
-        *common.md_table(["output", "first tied group", "second tied group",
+        f"settings ({', '.join(fixed) or 'none'}); a diverged run enters the screening at "
+        f"{prior.DIVERGED_RMSE:g} m, so that a setting that drives runs out of bounds is never "
+        f"dropped as inert. PAWN indices on the {sen['n']} design "
+        "points are median KS statistics, bounded in [0, 1]. Divergence is its own output (the "
+        "share of diverged runs, on every point); each tracking output is analysed on the "
+        "points where none of the runs it needs diverged (its n), so it describes the "
+        "settings that track. The settings of a tied group have overlapping intervals; the "
+        "first two groups are shown, at most six names each:", "",
+        *common.md_table(["output", "n", "first tied group", "second tied group",
                           "settings above the dummy's bound", "the dummy's bound"], rows),
     ])]  # fmt: skip
 

@@ -61,7 +61,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 from scipy import stats
@@ -69,8 +69,8 @@ from scipy import stats
 from analysis.calibration import prior
 from wmr.stats import clopper_pearson
 
-__all__ = ["LEVEL", "DISTANCES", "TRUTH_SEED0", "PLANT_SEED", "FRESH_PLANT_SEED",
-           "FRESH_TRUTH_SEED0", "planted_fresh", "DELTAS", "DELTA", "RULES",
+__all__ = ["LEVEL", "DISTANCES", "DECIDE_AT", "FRESH_DISTANCES", "TRUTH_SEED0", "PLANT_SEED",
+           "FRESH_PLANT_SEED", "FRESH_TRUTH_SEED0", "planted_fresh", "DELTAS", "DELTA", "RULES",
            "RULE", "DIVERGENCE_RULE", "DIVERGENCE_LEVEL", "divergence_score", "threshold",
            "per_number_threshold", "effective_dof", "implausibility", "CAP", "capped",
            "printed_round", "clopper_pearson", "proportion", "planted", "judge",
@@ -80,6 +80,10 @@ __all__ = ["LEVEL", "DISTANCES", "TRUTH_SEED0", "PLANT_SEED", "FRESH_PLANT_SEED"
 LEVEL = 0.95
 #: Distances in the unit cube of the varied settings at which the power is measured.
 DISTANCES = (0.1, 0.2, 0.3)
+#: The distance the issue judges the power at (>= 90 % rejected there, or the rule is too
+#: loose); the fresh truths also go further, to find the distance the rule does resolve.
+DECIDE_AT = 0.3
+FRESH_DISTANCES = (0.1, 0.2, 0.3, 0.4, 0.5)
 #: Planted truths' "paper" runs use seeds TRUTH_SEED0 + t (never a rule seed: those are < 1000).
 TRUTH_SEED0 = 100_000
 #: The generators of the planted settings and directions (truth t's: ``[PLANT_SEED, t]``).
@@ -337,13 +341,23 @@ def _planted_at(res, per, n_truths, distances, away, kept, c, delta, rl) -> dict
             "power_continuous_only": cont, "power_given_accepted": given,
             "truths_with_diverged_runs": {"n": int(div_runs.sum()),
                                           "accepted": int(np.sum(div_runs & accepted))},
-            "too_loose": bool(power[f"{max(distances):g}"]["p"] < 0.9),
+            "too_loose": bool(power[f"{DECIDE_AT:g}"]["p"] < 0.9),
+            "resolves_at": _resolves_at(power),
             "max_implausibility_at_truth": {"median": float(np.median(it)),
                                             "q90": float(np.quantile(it, 0.9)),
                                             "max": float(it.max())},
             "max_implausibility_truth": it.tolist(), "max_implausibility_away": ia.tolist(),
             "largest_at_truth": {prior.NUMBER_NAMES[i]: int(n) for i, n in enumerate(worst)
                                  if n}}  # fmt: skip
+
+
+def _resolves_at(power: Mapping[str, dict], target: float = 0.9) -> dict:
+    """The smallest measured distance whose power reaches ``target``: at its point estimate,
+    and with its whole Clopper-Pearson interval (``None``: no measured distance does)."""
+    d = sorted(power.values(), key=lambda x: x["distance"])
+    return {"target": target,
+            "point": next((x["distance"] for x in d if x["p"] >= target), None),
+            "interval": next((x["distance"] for x in d if x["ci_low"] >= target), None)}
 
 
 def judge(nums: np.ndarray, k_seeds: int, deltas: Sequence[float] = DELTAS,
@@ -365,8 +379,10 @@ def judge(nums: np.ndarray, k_seeds: int, deltas: Sequence[float] = DELTAS,
 
 def planted_fresh(ev, space, n_truths: int, rule_seeds: Sequence[int]) -> dict:
     """:func:`planted` on fresh truths (:data:`FRESH_PLANT_SEED`, :data:`FRESH_TRUTH_SEED0`),
-    less the per-truth arrays: the rule's coverage and power out of sample."""
-    out = planted(ev, space, n_truths, rule_seeds, seed=FRESH_PLANT_SEED,
+    less the per-truth arrays: the rule's coverage and power out of sample, the power also at
+    the longer distances of :data:`FRESH_DISTANCES` (truth t's first three moves are those of
+    :data:`DISTANCES`: its generator draws them first)."""
+    out = planted(ev, space, n_truths, rule_seeds, FRESH_DISTANCES, seed=FRESH_PLANT_SEED,
                   truth_seed0=FRESH_TRUTH_SEED0)
     for key in ("truths_u", "discrete_kept", "by_delta_earlier_threshold"):
         out.pop(key)

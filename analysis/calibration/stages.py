@@ -49,7 +49,7 @@ SCREEN_OUTPUTS = OUTPUTS + tuple(f"log_rmse:{s}/{c}" for s in prior.SCENARIOS
 @dataclass(frozen=True)
 class Level:
     """How much of the study to run (``QUICK`` for tests, ``MEDIUM`` the committed record and
-    what ``make calibration`` runs (about 95 minutes on 2 workers), ``FULL`` a larger study for a
+    what ``make calibration`` runs (about 105 minutes on 2 workers), ``FULL`` a larger study for a
     machine with more cores: see :data:`TIMED`)."""
 
     name: str
@@ -115,9 +115,10 @@ LEVELS = {lv.name: lv for lv in (QUICK, MEDIUM, FULL)}
 #: --workers 2`, a 2-core machine, 2026-12-07; the log of the full level's stages is summarised
 #: here).  MEDIUM is what ``make calibration`` runs.
 TIMED = {
-    "medium": "about 5,700 s from an empty store on 2 workers (250,716 runs). 4,860 s were "
+    "medium": "about 6,300 s from an empty store on 2 workers (274,716 runs). 4,860 s were "
               "measured from an empty store and tuning cache before the 100 fresh planted "
-              "truths, whose 49,200 runs added 851 s: over the 90-minute budget by ~5 min here",
+              "truths, whose 49,200 runs added 851 s and the 24,000 of their longer distances "
+              "(0.4, 0.5) 616 s: over the 90-minute budget by ~15 min here",
     "full": "screening and design 15 min, planted truths 15 min, the emulator, its waves and "
             "30 recovery truths 27 min. The fit then took ~9 s per generation of 12 points: its "
             "5 x 84 generations ~63 min: over 2 h in all before the verdict and the fair "
@@ -169,7 +170,10 @@ def _log_position(arr: np.ndarray) -> np.ndarray:
 
 
 def run_outputs(arr: np.ndarray, screen: bool = False) -> np.ndarray:
-    """Per seed, the values of :data:`OUTPUTS` (or :data:`SCREEN_OUTPUTS`), shape (n_seeds, s)."""
+    """Per seed, the values of :data:`OUTPUTS` (or :data:`SCREEN_OUTPUTS`), shape (n_seeds, s);
+    a diverged run enters as ``prior.DIVERGED_RMSE``.  Only the screening uses these values as
+    they are: there a setting that drives runs out of bounds must not look inert, and the
+    placeholder gives it a large effect.  The sensitivity indices use :func:`tracked_outputs`."""
     lp = _log_position(arr)
     per = lp.mean(axis=1)
     nums = numbers(arr)
@@ -179,6 +183,19 @@ def run_outputs(arr: np.ndarray, screen: bool = False) -> np.ndarray:
     if screen:
         cols.append(lp.reshape(-1, 12))
     return np.column_stack(cols)
+
+
+def tracked_outputs(arr: np.ndarray) -> np.ndarray:
+    """:func:`run_outputs` with NaN wherever a diverged run enters a value (divergence is its
+    own output, ``diverged_share``, never a number averaged into the others; DESIGN §7): a
+    controller's mean log RMSE needs its three runs, a margin its own and IAPID-NN-DEKF's, the rms
+    log ratio and the Kendall tau all 12 runs."""
+    y = run_outputs(arr)
+    dpos = ~np.isfinite(arr[:, :, :4]).all(axis=2).reshape(-1, 3, 4)  # (seed, scenario, law)
+    dc = dpos.any(axis=1)
+    every = dc.any(axis=1, keepdims=True)
+    mask = np.column_stack([dc, dc[:, 1:] | dc[:, :1], every, every])
+    return np.where(mask, np.nan, y)
 
 
 def _tau(nums: np.ndarray) -> np.ndarray:
@@ -226,8 +243,10 @@ def screening(ev, level: Level) -> dict:
 
 
 def _summary(nums: np.ndarray, div: np.ndarray) -> dict:
-    """Per point: the seed mean of the 36 numbers and whether any seed diverged (p, 36)."""
-    return {"mean": nums.mean(axis=1), "any_diverged": div.any(axis=1)}
+    """Per point: the seed mean of the 36 numbers, NaN where a seed diverged (the placeholder
+    is never averaged in), and whether any seed diverged (p, 36)."""
+    anyd = div.any(axis=1)
+    return {"mean": np.where(anyd, np.nan, nums.mean(axis=1)), "any_diverged": anyd}
 
 
 def design(ev, level: Level, space: Space) -> dict:
@@ -240,7 +259,10 @@ def design(ev, level: Level, space: Space) -> dict:
     nums = np.stack([numbers(a) for a in res])
     status = np.stack([a[..., -1] for a in res])
     feas = _summary(nums, np.stack([diverged(a) for a in res]))
-    disc = prior.discrepancy(feas["mean"])
+    # a point with a diverged run has no discrepancy (NaN; its runs are in ``n_diverged``)
+    tracked = ~feas["any_diverged"].any(axis=1)
+    disc = {k: np.where(tracked, v, np.nan)
+            for k, v in prior.discrepancy(feas["mean"]).items()}  # fmt: skip
     obj = np.array([fitmod.objective(x) for x in nums])  # the fit's: selects its candidates
     return {"u": U, "A": A, "B": B, "results": res, "nums": nums, "status": status, **feas,
             **disc, "objective": obj}  # fmt: skip
@@ -268,11 +290,12 @@ def coverage(des: dict) -> dict:
 
 
 def sensitivity(level: Level, space: Space, des: dict) -> dict:
-    """PAWN indices (``_calibration_pawn``) of :data:`OUTPUTS` (seed means per design point)
-    and of the share of diverged runs, on the design's own points (no extra runs)."""
+    """PAWN indices (``_calibration_pawn``) of :data:`OUTPUTS` (seed means per design point,
+    each on the points where no run it needs diverged: :func:`tracked_outputs`) and of the
+    share of diverged runs (every point), on the design's own points (no extra runs)."""
     from analysis.calibration import pawn
 
-    Y = np.stack([run_outputs(a).mean(axis=0) for a in des["results"]])
+    Y = np.stack([tracked_outputs(a).mean(axis=0) for a in des["results"]])
     div = np.mean(des["status"] != 0, axis=(1, 2))
     outputs = [*OUTPUTS, "diverged_share"]
     ix = pawn.pawn(des["u"], np.column_stack([Y, div]), list(space.names), outputs,
@@ -280,7 +303,9 @@ def sensitivity(level: Level, space: Space, des: dict) -> dict:
     return {"method": "PAWN (Pianosi & Wagener 2015; SALib.analyze.pawn's slicing, "
                       f"{pawn.SLICES} slices, median KS), a dummy setting as the floor, "
                       f"{level.pawn_resamples} bootstrap resamples of the design's rows "
-                      "(95 % percentile); settings whose intervals overlap are tied",
+                      "(95 % percentile); settings whose intervals overlap are tied; each "
+                      "tracking output on the points where none of the runs it needs "
+                      "diverged (its n), the diverged share on every point",
             "n": int(len(des["u"])), "outputs": outputs, "factors": list(space.names),
             "indices": ix}  # fmt: skip
 
