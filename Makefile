@@ -26,10 +26,7 @@ reproduce: $(STAMP)
 	$(BIN)/wmr reproduce --out paper
 
 # The notebooks' kernels import the studies (analysis/) from the checkout: PYTHONPATH says where.
-# `wmr cache --warm` first compiles the shipped kernels once, shared among the cores (a fresh
-# checkout's cache is empty: without it each test worker compiles the same kernels).
 test: $(STAMP)
-	$(BIN)/wmr cache --warm
 	PYTHONPATH=$(CURDIR) $(BIN)/python -m pytest --nbval --nbval-sanitize-with notebooks/sanitize.cfg -n auto --dist loadfile --durations=15
 
 bench: $(STAMP)
@@ -42,9 +39,9 @@ robots: $(STAMP)
 	$(BIN)/python -m analysis.robots --out paper --full
 	$(BIN)/wmr report --out paper
 
-# The calibration study on 2 workers: the medium level, the committed record (274,716 runs; about
-# 6,300 s from an empty store on a 2-core machine, 2026-12-07: 4,860 s measured before the 100
-# fresh planted truths were added, 1,467 s for them; over the 90-minute budget by ~15 min; its store
+# The calibration study on 2 workers: the medium level, the committed record (250,716 runs; about
+# 5,700 s from an empty store on a 2-core machine, 2026-12-07: 4,860 s measured before the 100
+# fresh planted truths were added, 851 s for them; over the 90-minute budget by ~5 min; its store
 # resumes).  `--full` is a larger study (2,048 design points, popsize-12 CMA-ES) that needs
 # over 2 h there (analysis/calibration/stages.py: TIMED).  `make reproduce` only re-renders the
 # committed record.

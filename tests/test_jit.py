@@ -38,26 +38,3 @@ def test_cache_dir_changes_with_any_source_file_and_only_with_sources(tmp_path, 
     assert second != first
     (pkg / "sub" / "b.py").write_text("y = 2\n")
     assert _jit._cache_dir(pkg) == first  # same sources, same folder (deterministic)
-
-
-def test_warm_compiles_what_a_later_run_loads(tmp_path):
-    """``wmr cache --warm`` for one controller, into an empty cache: a later process's run of
-    a shipped scenario on that controller loads every kernel it needs from the cache and
-    compiles none (numba's cache log says so)."""
-    import subprocess
-    import sys
-
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path), "NUMBA_DEBUG_CACHE": "1"}
-    warm = subprocess.run([sys.executable, "-m", "wmr.cli", "cache", "--warm", "--controller",
-                           "backstepping", "--jobs", "2"], env=env, capture_output=True,
-                          text=True, check=True)  # fmt: skip
-    assert "2 kernel(s) ready" in warm.stdout, warm.stdout
-    assert "data saved" in warm.stdout + warm.stderr
-    run = subprocess.run([sys.executable, "-c", (
-        "from dataclasses import replace; from wmr import scenario as s; "
-        "from wmr.closedloop.sim import simulate; "
-        "sc = s.load(s.builtin('lemniscate-slip')); "
-        "simulate(replace(sc, duration=10 * sc.dt), 'backstepping', 3)")],
-        env=env, capture_output=True, text=True, check=True)  # fmt: skip
-    log = run.stdout + run.stderr
-    assert "data loaded" in log and "data saved" not in log, log[-2000:]

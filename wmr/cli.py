@@ -378,23 +378,10 @@ def _plugin_option(parser) -> None:
 def cmd_cache(args) -> int:
     from wmr import _jit
 
-    if not args.warm and (args.controller or args.jobs):
-        raise UsageError("--controller and --jobs go with --warm")
     print(f"wmr's compiled kernels: {_jit.CACHE_DIR}")
     if args.prune:
         removed = _jit.prune_old_caches()
         print(f"removed {len(removed)} folder(s) of earlier versions of the source")
-    if args.warm:
-        import time
-
-        from wmr.engine.jobs import warm_shipped
-
-        t0 = time.perf_counter()
-        processes = args.jobs or os.cpu_count() or 1
-        done = warm_shipped(_controllers(args.controller), processes,
-                            progress=lambda s: print(f"  compiled: {s}", flush=True))
-        print(f"{len(done)} kernel(s) ready in {time.perf_counter() - t0:.0f} s "
-              f"({processes} process(es))")
     return 0
 
 
@@ -479,18 +466,9 @@ def build_parser() -> argparse.ArgumentParser:
     idf.set_defaults(func=cmd_identify)
 
     cache = sub.add_parser("cache", help="where wmr's compiled kernels are cached (--prune: "
-                           "remove those of earlier versions of the source; --warm: compile "
-                           "them now)")  # fmt: skip
+                           "remove those of earlier versions of the source)")  # fmt: skip
     cache.add_argument("--prune", action="store_true",
                        help="keep only the newest caches of earlier versions")  # fmt: skip
-    cache.add_argument("--warm", action="store_true",
-                       help="compile every kernel the shipped scenarios need (each built-in "
-                            "controller, or those of --controller, on an ideal and a "
-                            "non-ideal plant), shared among --jobs processes")  # fmt: skip
-    cache.add_argument("--controller", nargs="+", metavar="NAME", default=None,
-                       help="with --warm: only these controllers (default: all)")  # fmt: skip
-    cache.add_argument("--jobs", type=_positive_int, default=None,
-                       help="with --warm: processes (default: the machine's cores)")  # fmt: skip
     cache.set_defaults(func=cmd_cache)
     return parser
 

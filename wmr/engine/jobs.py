@@ -27,8 +27,7 @@ from wmr.engine.faults import describe, is_transient
 from wmr.scenario import Scenario
 
 __all__ = ["Job", "RESULT_FIELDS", "COLUMNS", "COLUMN_TYPES", "OK", "ERROR", "run_job",
-           "job_row", "result_columns", "measure_columns", "kernel_pairs", "warm_up",
-           "warm_shipped"]  # fmt: skip
+           "job_row", "result_columns", "measure_columns", "kernel_pairs", "warm_up"]  # fmt: skip
 
 #: The fields of ``wmr.closedloop.result.Row`` that describe the run's outcome (not the job).
 RESULT_FIELDS = ("rmse_x", "rmse_y", "rmse_theta", "rmse_position", "tail_x", "tail_y",
@@ -150,56 +149,3 @@ def warm_up(pairs: Iterable[tuple[Scenario, str]]) -> None:
         if key not in seen:
             seen.add(key)
             simulate(replace(sc, duration=sc.dt), controller, 0, keep_trajectory=False)
-
-
-def _warm_one(pair: tuple[str, str]) -> str:
-    """Compile the kernels of one (shipped scenario, controller) pair, with and without the
-    trajectory kept (a worker's task)."""
-    from wmr import scenario as scn
-    from wmr.closedloop.sim import simulate
-
-    name, controller = pair
-    sc = scn.load(scn.builtin(name))
-    warm_up([(sc, controller)])  # the sweeps' kernel (no trajectory kept)
-    simulate(replace(sc, duration=sc.dt), controller, 0)  # and a single run's (kept)
-    return f"{controller} on {name}"
-
-
-def warm_shipped(controllers: Iterable[str] | None = None, processes: int = 1,
-                 progress=None) -> list[str]:
-    """Compile (or load) every kernel the shipped scenarios need for ``controllers`` (default:
-    the built-in ones): one ``(controller, plant is ideal)`` pair each, the pairs shared out
-    among ``processes`` fresh processes (each pair is compiled once, so two processes halve
-    the wall time of a cold cache).  ``progress(text)`` is called as each pair finishes.
-    Returns the pairs, as text, in the order they finished."""
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-    from multiprocessing import get_context
-
-    from wmr import controllers as ctl
-    from wmr import scenario as scn
-
-    names = tuple(controllers) if controllers is not None else ctl.BUILTIN_NAMES
-    unknown = [c for c in names if c not in ctl.REGISTRY]
-    if unknown:
-        raise ValueError(f"unknown controller(s) {unknown}; known: {', '.join(ctl.NAMES)}")
-    if processes < 1:
-        raise ValueError(f"processes must be >= 1, got {processes}")
-    pairs: dict = {}
-    for name in scn.shipped():
-        ideal = scn.load(scn.builtin(name)).plant.ideal
-        for c in names:
-            pairs.setdefault((c, ideal), (name, c))
-    tasks = list(pairs.values())
-    done = []
-    if processes == 1:
-        for t in tasks:
-            done.append(_warm_one(t))
-            if progress:
-                progress(done[-1])
-        return done
-    with ProcessPoolExecutor(processes, mp_context=get_context("spawn")) as pool:
-        for f in as_completed([pool.submit(_warm_one, t) for t in tasks]):
-            done.append(f.result())
-            if progress:
-                progress(done[-1])
-    return done
