@@ -219,8 +219,6 @@ def calibration(cal: dict) -> Finding:
 
     pl, v, fit, po = cal["planted"], cal["verdict"], cal["best_fit"], cal["p_paper_order"]
     cov = pl["coverage"]
-    near = max(pl["power"], key=float)  # the farthest: where a rule must decide
-    pw = pl["power"][near]
     at = v["by_delta"][f"{DELTA:g}"]  # the verdict's discrepancy (its key: the rule's constant)
     widest = max(v["by_delta"], key=float)  # the largest discrepancy shown (a key: a constant)
     a9, ia = po["all_nine"], po["iapid_first_all"]
@@ -229,13 +227,11 @@ def calibration(cal: dict) -> Finding:
               if n_ok else f"None of the {v['n_candidates']} settings examined passes")
     there = "that discrepancy"  # the verdict's is the planted truths' (calibration.check)
     spread = fit["spread"]
-    text = (f"The feasibility rule (threshold {v['threshold']:.2f}, Šidák over 36 numbers) "
-            f"accepts a planted truth {int(cov['k'])} of {int(cov['n'])} times "
-            f"({100 * cov['ci_low']:.1f}–{100 * cov['ci_high']:.1f} %, nominal "
-            f"{100 * pl['nominal']:.0f} %) and rules out {int(pw['k'])} of {int(pw['n'])} points "
-            f"{float(near):g} away in the unit cube (at a {100 * pl['delta']:.0f} % "
-            "discrepancy" + _fresh_short(cal.get("planted_fresh"), near) + ")"
-            + (": too loose to decide. " if pl["too_loose"] else ". ")
+    text = (f"The feasibility rule (threshold {v['threshold']:.2f}, Šidák over 36 numbers, "
+            f"{100 * pl['delta']:.0f} % discrepancy) accepts planted truths {int(cov['k'])} of "
+            f"{int(cov['n'])} times ({100 * cov['ci_low']:.1f}–{100 * cov['ci_high']:.1f} %, "
+            f"nominal {100 * pl['nominal']:.0f} %); "
+            + _power_short(pl, cal.get("planted_fresh")) + ". "
             + f"{passes} at {there} (smallest maximum "
             f"implausibility {at['min_max_implausibility']:.2f}), "
             f"{v['by_delta'][widest]['count']} at {100 * float(widest):.0f} %"
@@ -286,12 +282,20 @@ def render(found: list[Finding]) -> list[str]:
     return lines
 
 
-def _fresh_short(fr: dict | None, far: str) -> str:
-    """The calibration rule out of sample (fresh planted truths): a clause, or nothing."""
-    if not fr:
-        return ""
-    pw = fr["power"][far]
-    at = (fr.get("resolves_at") or {}).get("point")
-    return (f"; {fr['n_truths']} fresh truths: {int(fr['coverage']['k'])} accepted, "
-            f"{int(pw['k'])} ruled out" + (", too loose" if fr["too_loose"] else "")
-            + (f", 90 % from {at:g}" if at and float(at) > float(far) else ""))
+def _power_short(pl: dict, fr: dict | None) -> str:
+    """The calibration rule's power at the issue's distance, out of sample where fresh planted
+    truths exist (the ones the rule was not revised against), with where it reaches 90 %."""
+    from analysis.calibration.rule import DECIDE_AT
+
+    key = f"{DECIDE_AT:g}"
+    x, said = (fr, f"on {fr['n_truths']} fresh truths it accepts {int(fr['coverage']['k'])} and "
+               ) if fr else (pl, "")
+    pw = x["power"][key]
+    # the first longer distance reaching 90 % (the record's resolves_at when past DECIDE_AT)
+    res = min((d for d, y in x["power"].items() if float(d) > DECIDE_AT and y["p"] >= 0.9),
+              key=float, default=None)  # fmt: skip
+    further = (f" ({int(x['power'][res]['k'])} of {int(x['power'][res]['n'])} at "
+               f"{x['power'][res]['distance']:g})" if res is not None and x["too_loose"] else "")
+    return (f"{said}rules out {int(pw['k'])} of {int(pw['n'])} points {pw['distance']:g} away "
+            "(unit cube)" + (": too loose by the 90 % criterion" if x["too_loose"] else "")
+            + further)

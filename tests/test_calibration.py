@@ -176,6 +176,18 @@ def test_a_diverged_run_is_never_averaged_into_a_tracking_output():
     gone = np.isnan(summ["mean"][0])
     assert gone.sum() == 3 and np.array_equal(gone, div[0].any(axis=0))
     assert np.array_equal(summ["mean"][0, ~gone], nums[0].mean(axis=0)[~gone])
+    # IAPID-NN-DEKF (controller 0) diverged: every margin is against it, so every margin goes
+    arr[1] = np.abs(rng.normal(0.1, 0.02, (12, 5)))
+    arr[1, 8 + 0, :4] = np.nan
+    nan = {n for n, v in zip(names, stages.tracked_outputs(arr)[1], strict=True) if np.isnan(v)}
+    assert nan == {"log_rmse:iapid-nn-dekf", "margin:backstepping", "margin:adaptive-nn",
+                   "margin:adaptive-pid", "rms_log_ratio", "kendall_tau"}  # fmt: skip
+    # a run whose heading error alone is not finite counts as diverged too
+    arr[1] = np.abs(rng.normal(0.1, 0.02, (12, 5)))
+    arr[1, 3, 2] = np.inf
+    nan = {n for n, v in zip(names, stages.tracked_outputs(arr)[1], strict=True) if np.isnan(v)}
+    assert nan == {"log_rmse:adaptive-pid", "margin:adaptive-pid", "rms_log_ratio",
+                   "kendall_tau"}  # fmt: skip
 
 
 def test_morris_design_moves_each_setting_once_by_delta():
@@ -598,8 +610,10 @@ def _points_agree(record: dict, out: Path) -> None:
     n = record["points"]["n"]
     assert len(pts["point"]) == n and pts["point"] == [float(i) for i in range(n)]
     assert list(pts) == record["points"]["columns"]
-    assert min(pts["rms_log_ratio"]) == pytest.approx(record["points"]["min_rms_log_ratio"],
-                                                      rel=1e-6)  # fmt: skip
+    rms = np.array(pts["rms_log_ratio"])
+    div = np.array(pts["n_diverged"]) > 0
+    assert np.array_equal(np.isnan(rms), div)  # a point with a diverged run has no discrepancy
+    assert np.nanmin(rms) == pytest.approx(record["points"]["min_rms_log_ratio"], rel=1e-6)
     best = record["points"]["best_point"]
     assert pts["rms_log_ratio"][best["index"]] == pytest.approx(best["rms_log_ratio"], rel=1e-6)
     assert sum(k > 0 for k in pts["n_diverged"]) == record["points"]["n_diverged_points"]
@@ -633,10 +647,13 @@ def _rerun_points(record: dict, out: Path, indices) -> None:
             if name in varied and not isinstance(value, (str, bool)):
                 assert pts[name][i] == pytest.approx(float(value), rel=1e-6), (i, name)
         _, arr = run_task(space.task(u[i], record["seeds"]))
+        assert pts["n_diverged"][i] == int(np.sum(arr[..., -1] != 0)), i
+        if pts["n_diverged"][i]:  # no discrepancy: divergence is its own endpoint
+            assert math.isnan(pts["rms_log_ratio"][i]), i
+            continue
         mean = stages.numbers(arr).mean(axis=0)
         rms = float(prior.discrepancy(mean)["rms_log_ratio"])
         assert pts["rms_log_ratio"][i] == pytest.approx(rms, rel=1e-6), i
-        assert pts["n_diverged"][i] == int(np.sum(arr[..., -1] != 0)), i
 
 
 def _rerun_planted(record: dict, t: int) -> None:
@@ -868,6 +885,36 @@ COMMITTED = ROOT / "paper" / "results" / "calibration.json"
 
 
 @pytest.mark.skipif(not COMMITTED.exists(), reason="no committed calibration record")
+def test_check_catches_a_tampered_decision_of_the_committed_record():
+    """The decisions the report reads (too loose, where the rule reaches 90 %, the PAWN rows
+    and sets) are recomputed by check: each tampering below fails it."""
+    import copy
+
+    from analysis import calibration
+
+    record = json.loads(COMMITTED.read_text())
+    calibration.check(record)
+
+    def tampered(edit):
+        bad = copy.deepcopy(record)
+        edit(bad)
+        with pytest.raises(AssertionError):
+            calibration.check(bad)
+
+    def not_loose(r):  # a proportion that is not its count's, and the decision read off it
+        r["planted_fresh"]["power"]["0.3"]["p"] = 0.9
+        r["planted_fresh"]["too_loose"] = False
+
+    tampered(not_loose)
+    tampered(lambda r: r["planted_fresh"]["resolves_at"].update(interval=None))
+    tampered(lambda r: r["planted_fresh"]["power_continuous_only"]["0.4"].update(k=23.0))
+    tampered(lambda r: r["planted"]["power"]["0.1"].update(ci_low=0.2))
+    tampered(lambda r: r["sensitivity"]["pawn"]["indices"]["rms_log_ratio"].update(n=256))
+    tampered(lambda r: r["sensitivity"]["pawn"]["indices"]["kendall_tau"]["above_dummy"]
+             .append("dt"))  # fmt: skip
+
+
+@pytest.mark.skipif(not COMMITTED.exists(), reason="no committed calibration record")
 def test_committed_record_checks_and_its_files_agree():
     from analysis import calibration
 
@@ -879,12 +926,16 @@ def test_committed_record_checks_and_its_files_agree():
 
 @pytest.mark.skipif(not COMMITTED.exists(), reason="no committed calibration record")
 def test_committed_record_is_what_its_runs_give():
-    """Three design points and one planted truth rebuilt from the committed record and run
-    again give the committed values (the record was made on this machine: to 1e-6 in the
-    points file's 7 digits, 1e-9 for the implausibility)."""
+    """Four design points (one with a diverged run) and one planted truth rebuilt from the
+    committed record and run again give the committed values (the record was made on this
+    machine: to 1e-6 in the points file's 7 digits, 1e-9 for the implausibility)."""
+    from analysis.calibration import read_points
+
     record = json.loads(COMMITTED.read_text())
     best = record["points"]["best_point"]["index"]
-    _rerun_points(record, ROOT / "paper", [best, 0, record["points"]["n"] - 1])
+    nd = read_points(ROOT / "paper", record)["n_diverged"]
+    diverged = next(i for i, k in enumerate(nd) if k > 0)
+    _rerun_points(record, ROOT / "paper", [best, 0, record["points"]["n"] - 1, diverged])
     _rerun_planted(record, 0)
 
 

@@ -174,6 +174,27 @@ def test_pawn_analyses_each_output_on_its_finite_rows():
     ref = pawn.pawn_median(X[~gone], y[~gone])
     assert [out["cond"]["indices"][k]["index"] for k in "ab"] == pytest.approx(ref, abs=1e-15)
     assert out["cond"]["above_dummy"] == ["a"] and out["rare"] is None
+    # an output's analysis is its own: alone, or after others, it is the same
+    alone = pawn.pawn(X, Y[:, [1]], ["a", "b"], ["all"], resamples=10)["all"]
+    assert alone == out["all"]
+
+
+def test_resolves_at_is_the_first_distance_reaching_the_target():
+    """The first distance whose power reaches 90 %, at its point estimate and with its whole
+    interval; a dip further out does not undo it; none reached: None."""
+    from analysis.calibration.rule import _resolves_at, proportion
+
+    def power(ks):
+        return {f"{d:g}": {**proportion(k, 100), "distance": d}
+                for d, k in zip((0.1, 0.2, 0.3, 0.4, 0.5), ks, strict=True)}  # fmt: skip
+
+    assert _resolves_at(power([30, 60, 83, 97, 95])) == {"target": 0.9, "point": 0.4,
+                                                         "interval": 0.4}  # fmt: skip
+    # 92/100: the point estimate reaches 90 %, its interval (from 84.8 %) does not
+    assert _resolves_at(power([30, 60, 92, 93, 99])) == {"target": 0.9, "point": 0.3,
+                                                         "interval": 0.5}  # fmt: skip
+    assert _resolves_at(power([30, 60, 70, 80, 89])) == {"target": 0.9, "point": None,
+                                                         "interval": None}  # fmt: skip
 
 
 def test_pawn_ties_do_not_chain():

@@ -66,7 +66,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis import common, tuning
-from analysis.calibration import figures, prior, rule, stages, waves
+from analysis.calibration import checks, figures, prior, rule, stages, waves
 from analysis.calibration import fit as fitmod
 from analysis.calibration.fair import fair_tuning
 from analysis.calibration.report import TITLE, notes, render, table
@@ -394,44 +394,18 @@ def check(record: dict) -> None:
         assert c["min"] <= c["q05"] <= c["median"] <= c["q95"] <= c["max"], c
         assert c["spanned"] == (c["min"] <= c["paper"] <= c["max"]), c
     pl = record["planted"]
+    checks.planted(pl, rule.DISTANCES)
     cov = pl["coverage"]
-    assert cov["n"] == pl["n_truths"] == len(pl["max_implausibility_truth"])
-    assert cov["k"] == sum(i <= pl["threshold"] for i in pl["max_implausibility_truth"])
     if record["level"] == "quick":
         assert cov["ci_high"] >= 0.9, cov
     else:
         assert cov["p"] >= 0.9, f"planted-truth coverage {cov['p']:.3f} < 0.9"
-    assert pl["nominal"] == rule.LEVEL
-    assert set(pl["power"]) == {f"{d:g}" for d in rule.DISTANCES}, pl["power"]
-    for j, (key, pw) in enumerate(pl["power"].items()):
-        assert pw["k"] == sum(r[j] > pl["threshold"] for r in pl["max_implausibility_away"])
-        assert pw["ci_low"] <= pw["p"] <= pw["ci_high"], (key, pw)
-    assert pl["too_loose"] == (pl["power"][f"{rule.DECIDE_AT:g}"]["p"] < 0.9)
-    for j, key in enumerate(pl["power"]):  # the moves that kept every discrete setting's level
-        sel = [t for t, kept in enumerate(pl["discrete_kept"]) if kept[j]]
-        cont = pl["power_continuous_only"][key]
-        assert cont["n"] == len(sel), (key, cont)
-        assert cont["k"] == sum(pl["max_implausibility_away"][t][j] > pl["threshold"]
-                                for t in sel), (key, cont)  # fmt: skip
-    acc = [i <= pl["threshold"] for i in pl["max_implausibility_truth"]]
-    for j, key in enumerate(pl["power"]):  # the power around the accepted truths
-        given = pl["power_given_accepted"][key]
-        assert given["n"] == sum(acc), (key, given)
-        assert given["k"] == sum(a and r[j] > pl["threshold"] for a, r in
-                                 zip(acc, pl["max_implausibility_away"], strict=True)), key
     fr = record.get("planted_fresh")  # out of sample: reported, its coverage not asserted
     if fr is not None:
+        checks.planted(fr, rule.FRESH_DISTANCES)
         assert fr["generator_seed"] != pl["generator_seed"], fr["generator_seed"]
         assert fr["truth_seeds"][0] > pl["truth_seeds"][1], (fr["truth_seeds"], pl["truth_seeds"])
-        assert fr["coverage"]["n"] == fr["n_truths"] == len(fr["max_implausibility_truth"])
-        assert fr["coverage"]["k"] == sum(i <= fr["threshold"]
-                                          for i in fr["max_implausibility_truth"])
-        assert set(fr["power"]) == {f"{d:g}" for d in rule.FRESH_DISTANCES}, fr["power"]
-        for j, pw in enumerate(fr["power"].values()):
-            assert pw["k"] == sum(r[j] > fr["threshold"] for r in fr["max_implausibility_away"])
-        assert fr["too_loose"] == (fr["power"][f"{rule.DECIDE_AT:g}"]["p"] < 0.9)
-        reach = [float(d) for d, pw in fr["power"].items() if pw["p"] >= 0.9]
-        assert fr["resolves_at"]["point"] == (min(reach) if reach else None), fr["resolves_at"]
+    checks.pawn(record)
     assert "calibration_power.png" in record["figures"], record["figures"]  # the power figure
     ver = record["verdict"]
     for key, v in ver["by_delta"].items():

@@ -18,6 +18,8 @@ exactly.
 
 from __future__ import annotations
 
+import zlib
+
 import numpy as np
 
 __all__ = ["SLICES", "RESAMPLES", "pawn_median", "pawn", "ties"]
@@ -58,12 +60,14 @@ def pawn(X: np.ndarray, Y: np.ndarray, names, outputs, seed: int = 0,
     analysed on its finite rows (their number is its ``n``; NaN marks a value that is not
     defined, such as a tracking error of a diverged run); ``None`` when it has fewer than
     ``2 x SLICES`` of them or they are constant.  The dummy column is drawn from ``seed``;
-    output k's bootstrap and null from ``[seed, k]``."""
+    output o's bootstrap and null from ``[seed, crc32(o)]``."""
     Xall = np.column_stack([X, np.random.default_rng(seed).random(X.shape[0])])
     q = [(1 - level) / 2, (1 + level) / 2]
     out = {}
     for k, o in enumerate(outputs):
-        rng = np.random.default_rng([seed, k])  # each output's own: the others do not move it
+        # each output's own generator, keyed by its name: adding, dropping or reordering the
+        # other outputs does not move it
+        rng = np.random.default_rng([seed, zlib.crc32(str(o).encode())])
         ok = np.isfinite(Y[:, k])
         y, Xd, n = Y[ok, k], Xall[ok], int(ok.sum())
         if n < 2 * SLICES or np.ptp(y) == 0:

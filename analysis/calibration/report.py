@@ -118,8 +118,12 @@ def _answer(r: dict) -> list[str]:
     ranking = [
         f"**The paper's ranking over the prior.** All nine orders as printed: "
         f"{_pct(po['all_nine'])}; IAPID-NN-DEKF lowest on all nine: "
-        f"{_pct(po['iapid_first_all'])} (Clopper-Pearson over {po['n_points']} points).",
-        *([f"PAWN's first tied group on the discrepancy holds an inert dummy setting and "
+        f"{_pct(po['iapid_first_all'])} (Clopper-Pearson over {po['n_points']} points; a "
+        "controller whose run diverged is ranked last in its table).",
+        *(["PAWN has no index of the discrepancy here: too few points where every run "
+           "tracked."] if not sens else
+          [f"On the {sens['n']} points where every run tracked, PAWN's first "
+           "tied group on the discrepancy holds an inert dummy setting and "
            f"{len(top)} settings, so it ranks none of them; "
            + (f"{len(above)} {'has an estimate' if len(above) == 1 else 'have estimates'} above "
               f"the dummy's upper bound ({', '.join(above)}), yet "
@@ -166,20 +170,32 @@ def _fresh(pl: dict, fr: dict | None, far: str) -> str:
 
 
 def _resolution(fr: dict, far: str) -> str:
-    """How far apart the rule tells settings, out of sample: its power at the fresh truths'
-    longer distances and the first distance where it reaches 90 %."""
-    longer = {d: x for d, x in fr["power"].items() if float(d) > float(far)}
+    """Where the rule reaches 90 % power out of sample: the fresh truths' longer distances
+    (added once the power at ``far`` was seen), overall, along moves that keep every discrete
+    setting, and on the truths whose numbers are all finite."""
+    longer = [d for d in fr["power"] if float(d) > float(far)]
     if not longer:
         return ""
-    res = fr["resolves_at"]
-    where = (f"it reaches {100 * res['target']:.0f} % at distance {res['point']:g}"
-             + (f" (its whole interval at {res['interval']:g})" if res["interval"] else
-                " (at its point estimate; no measured distance has its whole interval there)")
-             if res["point"] else
-             f"it reaches {100 * res['target']:.0f} % at no measured distance")
-    return (" Further out it rules out " + ", ".join(f"{d}: {_pct(x)}" for d, x in
-                                                     longer.items())
-            + f": {where}, the resolution the verdict has in the unit cube.")
+    res, pw = fr["resolves_at"], fr["power"]
+
+    def line(block: str) -> str:
+        return ", ".join(f"{d}: {fr[block][d]['k']:.0f} of {fr[block][d]['n']:.0f} "
+                         f"[{100 * fr[block][d]['ci_low']:.1f}, "
+                         f"{100 * fr[block][d]['ci_high']:.1f}]" for d in longer)
+
+    where = (f"Its power first reaches {100 * res['target']:.0f} % at distance {res['point']:g}"
+             + (f", where its whole interval clears {100 * res['target']:.0f} %"
+                if res["interval"] == res["point"] else ", at its point estimate only")
+             if res["point"] is not None else
+             f"It reaches {100 * res['target']:.0f} % power at no measured distance")
+    short = [d for d in longer if pw[d]["ci_low"] < res["target"]]
+    return (" Added once that power was seen, longer moves are ruled out at distance "
+            + ", ".join(f"{d}: {_pct(pw[d])}" for d in longer) + " (median actual distances "
+            + ", ".join(f"{pw[d]['actual_distance_median']:.2f}" for d in longer)
+            + ": reflection at the cube's edges shortens them). " + where
+            + (f"; the interval at {', '.join(short)} reaches below it" if short else "")
+            + f". Along the moves that keep every discrete setting: {line('power_continuous_only')}"
+            f"; on the truths whose numbers are all finite: {line('power_all_finite')}.")
 
 
 def _converged(fit: dict) -> str:
@@ -261,8 +277,10 @@ def _answer_sensitivity(r: dict) -> list[str]:
         x = sen["indices"].get(o)
         if x:
             ties = [*x["ties"][:2], [], []][:2]
+            cen = sen.get("every_point", {}).get(o)
             rows.append([o, x.get("n", sen["n"]), *[group(g) if g else "—" for g in ties],
                          len(x["above_dummy"]),
+                         "—" if cen is None or o == "diverged_share" else len(cen["above_dummy"]),
                          f"{x['dummy_high']:.3f}"])  # fmt: skip
     scr = r["screening"]
     fixed = [n for n in r["prior"] if not r["prior"][n].get("varied", True)]
@@ -270,16 +288,31 @@ def _answer_sensitivity(r: dict) -> list[str]:
         "**Which unstated settings decide it?** Morris screening "
         f"({scr['trajectories']} trajectories, {scr['points']} points) fixed {len(fixed)} "
         f"settings ({', '.join(fixed) or 'none'}); a diverged run enters the screening at "
-        f"{prior.DIVERGED_RMSE:g} m, so that a setting that drives runs out of bounds is never "
-        f"dropped as inert. PAWN indices on the {sen['n']} design "
+        f"{prior.DIVERGED_RMSE:g} m, so that a setting that drives runs out of bounds shows a "
+        f"large effect there. PAWN indices on the design's {sen['n']} "
         "points are median KS statistics, bounded in [0, 1]. Divergence is its own output (the "
         "share of diverged runs, on every point); each tracking output is analysed on the "
         "points where none of the runs it needs diverged (its n), so it describes the "
-        "settings that track. The settings of a tied group have overlapping intervals; the "
-        "first two groups are shown, at most six names each:", "",
+        "settings that track. Beside it, the same output on every point with a diverged run "
+        f"ranked worst (PAWN reads only ranks): {_moved(sen)}. The settings of a tied group "
+        "have overlapping intervals; the first two groups are shown, at most six names each:",
+        "",
         *common.md_table(["output", "n", "first tied group", "second tied group",
-                          "settings above the dummy's bound", "the dummy's bound"], rows),
+                          "settings above the dummy's bound",
+                          "above it on every point (diverged ranked worst)",
+                          "the dummy's bound"], rows),
     ])]  # fmt: skip
+
+
+def _moved(sen: dict) -> str:
+    """How many tracking outputs' settings above the dummy differ between the tracked points
+    and every point (a diverged run ranked worst)."""
+    both = [(x, sen["every_point"][o]) for o, x in sen["indices"].items()
+            if x and sen.get("every_point", {}).get(o)]  # fmt: skip
+    moved = sum(set(x["above_dummy"]) != set(c["above_dummy"]) for x, c in both)
+    return (f"the settings above the dummy's bound differ between the two for {moved} of "
+            f"{len(both)} outputs" + (", so a setting's place above the bound is within the "
+                                      "noise of the choice" if moved else ""))
 
 
 def _vol(x: float) -> str:

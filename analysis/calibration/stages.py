@@ -300,6 +300,11 @@ def sensitivity(level: Level, space: Space, des: dict) -> dict:
     outputs = [*OUTPUTS, "diverged_share"]
     ix = pawn.pawn(des["u"], np.column_stack([Y, div]), list(space.names), outputs,
                    seed=DESIGN_SEED, resamples=level.pawn_resamples)  # fmt: skip
+    # beside it, every point with a diverged run at the placeholder: PAWN reads only ranks, so
+    # that ranks a diverged run worst (censored) instead of leaving its point out
+    Yc = np.stack([run_outputs(a).mean(axis=0) for a in des["results"]])
+    cen = pawn.pawn(des["u"], Yc, list(space.names), list(OUTPUTS), seed=DESIGN_SEED,
+                    resamples=level.pawn_resamples)  # fmt: skip
     return {"method": "PAWN (Pianosi & Wagener 2015; SALib.analyze.pawn's slicing, "
                       f"{pawn.SLICES} slices, median KS), a dummy setting as the floor, "
                       f"{level.pawn_resamples} bootstrap resamples of the design's rows "
@@ -307,7 +312,13 @@ def sensitivity(level: Level, space: Space, des: dict) -> dict:
                       "tracking output on the points where none of the runs it needs "
                       "diverged (its n), the diverged share on every point",
             "n": int(len(des["u"])), "outputs": outputs, "factors": list(space.names),
-            "indices": ix}  # fmt: skip
+            "indices": ix,
+            "every_point": {"note": "each tracking output on every point, a diverged run "
+                                    f"at {prior.DIVERGED_RMSE:g} m (ranked worst)",
+                            **{o: None if x is None else {
+                                "n": x["n"], "above_dummy": x["above_dummy"],
+                                "dummy_high": x["dummy_high"], "first_tied": x["ties"][0]}
+                               for o, x in cen.items()}}}  # fmt: skip
 
 
 def ranking(des: dict, level: Level) -> dict:

@@ -1,0 +1,69 @@
+"""The consistency checks of the calibration record's planted-truth and sensitivity blocks
+(``analysis.calibration.check`` calls them): each count, proportion and decision recomputed
+from the per-truth values and the design's points it summarises."""
+
+from __future__ import annotations
+
+from analysis.calibration import rule
+
+__all__ = ["proportion", "planted", "pawn"]
+
+
+def proportion(x: dict) -> None:
+    """A proportion of the record is its count's: p = k / n and the Clopper-Pearson interval."""
+    assert x["p"] == (x["k"] / x["n"] if x["n"] else None), x
+    lo, hi = rule.clopper_pearson(x["k"], x["n"])
+    assert (x["ci_low"], x["ci_high"]) == (lo, hi), x
+
+
+def planted(pl: dict, distances) -> None:
+    """A planted-truth block's counts, proportions and decisions follow from its per-truth
+    maximum implausibilities and moves."""
+    c, it, ia = pl["threshold"], pl["max_implausibility_truth"], pl["max_implausibility_away"]
+    assert pl["nominal"] == rule.LEVEL
+    assert pl["coverage"]["n"] == pl["n_truths"] == len(it) == len(ia)
+    assert pl["coverage"]["k"] == sum(i <= c for i in it)
+    assert set(pl["power"]) == {f"{d:g}" for d in distances}, pl["power"]
+    acc = [i <= c for i in it]
+    n_fin = pl["coverage_all_finite"]["n"]
+    for j, key in enumerate(pl["power"]):
+        assert pl["power"][key]["k"] == sum(r[j] > c for r in ia), key
+        sel = [t for t, kept in enumerate(pl["discrete_kept"]) if kept[j]]
+        cont = pl["power_continuous_only"][key]  # the moves that kept every discrete level
+        assert (cont["n"], cont["k"]) == (len(sel), sum(ia[t][j] > c for t in sel)), key
+        given = pl["power_given_accepted"][key]  # around the accepted truths
+        assert given["n"] == sum(acc), (key, given)
+        assert given["k"] == sum(a and r[j] > c for a, r in zip(acc, ia, strict=True)), key
+        assert pl["power_all_finite"][key]["n"] == n_fin, key
+        for block in ("power", "power_continuous_only", "power_given_accepted",
+                      "power_all_finite"):  # fmt: skip
+            proportion(pl[block][key])
+    for x in (pl["coverage"], pl["coverage_all_finite"]):
+        proportion(x)
+    power = pl["power"]
+    assert pl["too_loose"] == (power[f"{rule.DECIDE_AT:g}"]["p"] < 0.9)
+    reach = [float(d) for d, pw in power.items() if pw["p"] >= 0.9]
+    whole = [float(d) for d, pw in power.items() if pw["ci_low"] >= 0.9]
+    assert pl["resolves_at"] == {"target": 0.9, "point": min(reach) if reach else None,
+                                 "interval": min(whole) if whole else None}, pl["resolves_at"]
+
+
+def pawn(record: dict) -> None:
+    """Each PAWN output's rows: every point for the diverged share, the tracked points for
+    the discrepancy and the tau; its settings above the dummy are those whose index exceeds
+    the dummy's bound; its tied groups partition the settings and the dummy."""
+    sen, pts = record["sensitivity"]["pawn"], record["points"]
+    tracked = pts["n"] - pts["n_diverged_points"]
+    for o, x in sen["indices"].items():
+        if x is None:
+            continue
+        want = {"diverged_share": pts["n"], "rms_log_ratio": tracked, "kendall_tau": tracked}
+        if o in want:
+            assert x["n"] == want[o], (o, x["n"], want[o])
+        else:
+            assert tracked <= x["n"] <= pts["n"], (o, x["n"])
+        names = [n for n in x["indices"] if n != "dummy"]
+        assert x["above_dummy"] == [n for n in names
+                                    if x["indices"][n]["index"] > x["dummy_high"]], o
+        flat = [n for g in x["ties"] for n in g]
+        assert sorted(flat) == sorted(x["indices"]), o
