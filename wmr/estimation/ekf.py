@@ -114,11 +114,7 @@ def joseph_update(x, P, H, innovation, R, work, small=None):
     # M^T = H P (= (P H^T)^T for symmetric P)
     _h_times_p(H, P, HP)
     innovation_covariance(HP, H, R, S)
-    for r in range(m):
-        for s in range(r):
-            v = 0.5 * (S[r, s] + S[s, r])
-            S[r, s] = v
-            S[s, r] = v
+    _symmetrise(S)
     if not cholesky(S, L):
         return np.nan
     # K^T = S^{-1} H P, by forward and back substitution with L L^T = S
@@ -165,6 +161,16 @@ def innovation_covariance(HP, H, R, S):
             for b in range(n):
                 acc += HP[r, b] * H[s, b]
             S[r, s] = acc + R[r, s]
+
+
+@njit
+def _symmetrise(S):
+    """``S = (S + S^T) / 2`` in place, each pair averaged once (a square matrix)."""
+    for r in range(S.shape[0]):
+        for s in range(r):
+            v = 0.5 * (S[r, s] + S[s, r])
+            S[r, s] = v
+            S[s, r] = v
 
 
 @njit
@@ -488,11 +494,7 @@ def joseph_identity3(x, P, innovation, R, work, small):
             for b in range(3):
                 acc += HP[r, b] * (1.0 if s == b else 0.0)
             S[r, s] = acc + R[r, s]
-    for r in range(3):
-        for s in range(r):
-            v = 0.5 * (S[r, s] + S[s, r])
-            S[r, s] = v
-            S[s, r] = v
+    _symmetrise(S)
     if not cholesky(S, L):
         return np.nan
     for r in range(3):  # K^T = S^{-1} H P: forward, then back substitution (cholesky_solve_rows)
