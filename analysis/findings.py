@@ -227,11 +227,13 @@ def calibration(cal: dict) -> Finding:
               if n_ok else f"None of the {v['n_candidates']} settings examined passes")
     there = "that discrepancy"  # the verdict's is the planted truths' (calibration.check)
     spread = fit["spread"]
+    x = cal.get("planted_fresh") or pl  # out of sample where fresh truths exist
+    cov = x["coverage"]
     text = (f"The feasibility rule (threshold {v['threshold']:.2f}, Šidák over 36 numbers, "
-            f"{100 * pl['delta']:.0f} % discrepancy) accepts planted truths {int(cov['k'])} of "
-            f"{int(cov['n'])} times ({100 * cov['ci_low']:.1f}–{100 * cov['ci_high']:.1f} %, "
-            f"nominal {100 * pl['nominal']:.0f} %); "
-            + _power_short(pl, cal.get("planted_fresh")) + ". "
+            f"{100 * pl['delta']:.0f} % discrepancy) accepts {int(cov['k'])} of "
+            f"{int(cov['n'])} {'fresh ' if x is not pl else ''}planted truths "
+            f"({100 * cov['ci_low']:.1f}–{100 * cov['ci_high']:.1f} %, nominal "
+            f"{100 * pl['nominal']:.0f} %) and " + _power_short(x) + ". "
             + f"{passes} at {there} (smallest maximum "
             f"implausibility {at['min_max_implausibility']:.2f}), "
             f"{v['by_delta'][widest]['count']} at {100 * float(widest):.0f} %"
@@ -282,20 +284,23 @@ def render(found: list[Finding]) -> list[str]:
     return lines
 
 
-def _power_short(pl: dict, fr: dict | None) -> str:
-    """The calibration rule's power at the issue's distance, out of sample where fresh planted
-    truths exist (the ones the rule was not revised against), with where it reaches 90 %."""
+def _power_short(x: dict) -> str:
+    """The calibration rule's power at the issue's distance on planted truths ``x`` (the
+    fresh ones where they exist), and where it first reaches 90 % when it is too loose."""
     from analysis.calibration.rule import DECIDE_AT
 
-    key = f"{DECIDE_AT:g}"
-    x, said = (fr, f"on {fr['n_truths']} fresh truths it accepts {int(fr['coverage']['k'])} and "
-               ) if fr else (pl, "")
-    pw = x["power"][key]
-    # the first longer distance reaching 90 % (the record's resolves_at when past DECIDE_AT)
+    pw = x["power"][f"{DECIDE_AT:g}"]
+    # the first longer distance reaching 90 %: the record's resolves_at (calibration.check)
     res = min((d for d, y in x["power"].items() if float(d) > DECIDE_AT and y["p"] >= 0.9),
               key=float, default=None)  # fmt: skip
-    further = (f" ({int(x['power'][res]['k'])} of {int(x['power'][res]['n'])} at "
-               f"{x['power'][res]['distance']:g})" if res is not None and x["too_loose"] else "")
-    return (f"{said}rules out {int(pw['k'])} of {int(pw['n'])} points {pw['distance']:g} away "
-            "(unit cube)" + (": too loose by the 90 % criterion" if x["too_loose"] else "")
-            + further)
+    if not x["too_loose"]:
+        verdict = ("" if pw["ci_low"] >= 0.9 else
+                   ", meeting the 90 % criterion at its point estimate only")
+    elif res is None:
+        verdict = ": too loose by the 90 % criterion at every distance measured"
+    else:
+        y = x["power"][res]
+        verdict = (": too loose by the 90 % criterion "
+                   f"({int(y['k'])} of {int(y['n'])} at {y['distance']:g})")
+    return (f"rules out {int(pw['k'])} of {int(pw['n'])} points {pw['distance']:g} away "
+            "(unit cube)" + verdict)

@@ -886,11 +886,14 @@ COMMITTED = ROOT / "paper" / "results" / "calibration.json"
 
 @pytest.mark.skipif(not COMMITTED.exists(), reason="no committed calibration record")
 def test_check_catches_a_tampered_decision_of_the_committed_record():
-    """The decisions the report reads (too loose, where the rule reaches 90 %, the PAWN rows
-    and sets) are recomputed by check: each tampering below fails it."""
+    """The decisions and counts the report reads (too loose, where the rule reaches 90 %, the
+    continuous-only and all-finite counts, the actual distances, the PAWN rows, sets and ties)
+    are recomputed by check: each tampering below, one field at a time (a count with its own
+    consistent proportion), fails it."""
     import copy
 
     from analysis import calibration
+    from analysis.calibration import rule
 
     record = json.loads(COMMITTED.read_text())
     calibration.check(record)
@@ -901,17 +904,29 @@ def test_check_catches_a_tampered_decision_of_the_committed_record():
         with pytest.raises(AssertionError):
             calibration.check(bad)
 
-    def not_loose(r):  # a proportion that is not its count's, and the decision read off it
-        r["planted_fresh"]["power"]["0.3"]["p"] = 0.9
-        r["planted_fresh"]["too_loose"] = False
+    def count(x: dict, k: float) -> None:  # a count with its own p and interval: consistent
+        lo, hi = rule.clopper_pearson(k, x["n"])
+        x.update(k=k, p=k / x["n"], ci_low=lo, ci_high=hi)
 
-    tampered(not_loose)
+    fr, pawn = record["planted_fresh"], record["sensitivity"]["pawn"]
+    tampered(lambda r: r["planted_fresh"].update(too_loose=not fr["too_loose"]))
     tampered(lambda r: r["planted_fresh"]["resolves_at"].update(interval=None))
-    tampered(lambda r: r["planted_fresh"]["power_continuous_only"]["0.4"].update(k=23.0))
+    tampered(lambda r: r["planted_fresh"]["power"]["0.3"].update(p=0.9))  # not its count's
     tampered(lambda r: r["planted"]["power"]["0.1"].update(ci_low=0.2))
+    tampered(lambda r: count(r["planted_fresh"]["power_continuous_only"]["0.4"], 23.0))
+    tampered(lambda r: count(r["planted_fresh"]["power_all_finite"]["0.4"], 93.0))
+    tampered(lambda r: count(r["planted_fresh"]["coverage_all_finite"],
+                             fr["coverage_all_finite"]["k"] - 1))  # fmt: skip
+    tampered(lambda r: r["planted_fresh"]["power"]["0.5"].update(actual_distance_median=0.5))
+    tampered(lambda r: r["planted"]["by_delta"]["0.25"]["power"]["0.3"].update(p=0.9))
     tampered(lambda r: r["sensitivity"]["pawn"]["indices"]["rms_log_ratio"].update(n=256))
     tampered(lambda r: r["sensitivity"]["pawn"]["indices"]["kendall_tau"]["above_dummy"]
              .append("dt"))  # fmt: skip
+    first = pawn["indices"]["rms_log_ratio"]["ties"]
+    tampered(lambda r: r["sensitivity"]["pawn"]["indices"]["rms_log_ratio"].update(
+        ties=[[n] for g in first for n in g]))  # every setting its own group: not the intervals'
+    tampered(lambda r: r["sensitivity"]["pawn"]["every_point"]["outputs"]["rms_log_ratio"]
+             .update(n=238))  # fmt: skip
 
 
 @pytest.mark.skipif(not COMMITTED.exists(), reason="no committed calibration record")

@@ -4,6 +4,11 @@ from the per-truth values and the design's points it summarises."""
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
+
+from analysis.calibration import pawn as pawnmod
 from analysis.calibration import rule
 
 __all__ = ["proportion", "planted", "pawn"]
@@ -13,7 +18,8 @@ def proportion(x: dict) -> None:
     """A proportion of the record is its count's: p = k / n and the Clopper-Pearson interval."""
     assert x["p"] == (x["k"] / x["n"] if x["n"] else None), x
     lo, hi = rule.clopper_pearson(x["k"], x["n"])
-    assert (x["ci_low"], x["ci_high"]) == (lo, hi), x
+    assert math.isclose(x["ci_low"], lo, abs_tol=1e-9), x
+    assert math.isclose(x["ci_high"], hi, abs_tol=1e-9), x
 
 
 def planted(pl: dict, distances) -> None:
@@ -25,7 +31,11 @@ def planted(pl: dict, distances) -> None:
     assert pl["coverage"]["k"] == sum(i <= c for i in it)
     assert set(pl["power"]) == {f"{d:g}" for d in distances}, pl["power"]
     acc = [i <= c for i in it]
-    n_fin = pl["coverage_all_finite"]["n"]
+    fin = pl["truth_all_finite"]
+    assert len(fin) == len(it)
+    cf = pl["coverage_all_finite"]
+    assert (cf["n"], cf["k"]) == (sum(fin), sum(a and f for a, f in zip(acc, fin, strict=True)))
+    n_fin = cf["n"]
     for j, key in enumerate(pl["power"]):
         assert pl["power"][key]["k"] == sum(r[j] > c for r in ia), key
         sel = [t for t, kept in enumerate(pl["discrete_kept"]) if kept[j]]
@@ -34,12 +44,19 @@ def planted(pl: dict, distances) -> None:
         given = pl["power_given_accepted"][key]  # around the accepted truths
         assert given["n"] == sum(acc), (key, given)
         assert given["k"] == sum(a and r[j] > c for a, r in zip(acc, ia, strict=True)), key
-        assert pl["power_all_finite"][key]["n"] == n_fin, key
+        pf = pl["power_all_finite"][key]
+        assert (pf["n"], pf["k"]) == (n_fin, sum(f and r[j] > c for f, r in
+                                                 zip(fin, ia, strict=True))), key
+        med = float(np.median([d[j] for d in pl["actual_distance"]]))
+        assert math.isclose(pl["power"][key]["actual_distance_median"], med), key
         for block in ("power", "power_continuous_only", "power_given_accepted",
                       "power_all_finite"):  # fmt: skip
             proportion(pl[block][key])
     for x in (pl["coverage"], pl["coverage_all_finite"]):
         proportion(x)
+    for block in pl["by_delta"].values():  # the same runs at other discrepancies
+        for x in (block["coverage"], *block["power"].values()):
+            proportion(x)
     power = pl["power"]
     assert pl["too_loose"] == (power[f"{rule.DECIDE_AT:g}"]["p"] < 0.9)
     reach = [float(d) for d, pw in power.items() if pw["p"] >= 0.9]
@@ -62,8 +79,17 @@ def pawn(record: dict) -> None:
             assert x["n"] == want[o], (o, x["n"], want[o])
         else:
             assert tracked <= x["n"] <= pts["n"], (o, x["n"])
-        names = [n for n in x["indices"] if n != "dummy"]
-        assert x["above_dummy"] == [n for n in names
-                                    if x["indices"][n]["index"] > x["dummy_high"]], o
-        flat = [n for g in x["ties"] for n in g]
-        assert sorted(flat) == sorted(x["indices"]), o
+        _pawn_entry(x, o)
+    for o, x in sen.get("every_point", {}).get("outputs", {}).items():
+        if x is not None:
+            assert x["n"] == pts["n"], (o, x["n"])
+            _pawn_entry(x, o)
+
+
+def _pawn_entry(x: dict, o: str) -> None:
+    """One output's PAWN entry: the settings above the floor are those whose index exceeds
+    it; the tied groups are :func:`pawn.ties` of the indices."""
+    names = [n for n in x["indices"] if n != "dummy"]
+    assert x["above_dummy"] == [n for n in names
+                                if x["indices"][n]["index"] > x["dummy_high"]], o
+    assert x["ties"] == pawnmod.ties(x["indices"]), o

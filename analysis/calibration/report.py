@@ -56,11 +56,9 @@ def _answer(r: dict) -> list[str]:
           if pl["power"][far]["ci_low"] < 0.9 else []),
         _fresh(pl, r.get("planted_fresh"), far),
         "Over the moves that keep every discrete setting at the truth's level it rules out "
-        + ", ".join(f"{d}: {x['k']:.0f} of {x['n']:.0f}"
-                    for d, x in pl["power_continuous_only"].items()) + ".",
+        + _both(pl, r.get("planted_fresh"), "power_continuous_only") + ".",
         "Around the truths it accepts, it rules out "
-        + ", ".join(f"{d}: {x['k']:.0f} of {x['n']:.0f}"
-                    for d, x in pl["power_given_accepted"].items()) + ".",
+        + _both(pl, r.get("planted_fresh"), "power_given_accepted") + ".",
         fair_report.short(r["fair_tuning"]),
     ]
     earlier, dkey = pl["by_delta_earlier_threshold"], f"{pl['delta']:g}"
@@ -126,10 +124,10 @@ def _answer(r: dict) -> list[str]:
            "tied group on the discrepancy holds an inert dummy setting and "
            f"{len(top)} settings, so it ranks none of them; "
            + (f"{len(above)} {'has an estimate' if len(above) == 1 else 'have estimates'} above "
-              f"the dummy's upper bound ({', '.join(above)}), yet "
+              f"the inert floor ({', '.join(above)}), yet "
               f"{'its interval overlaps' if len(above) == 1 else 'their intervals overlap'} the "
               "dummy's: tied with it."
-              if above else "none lies above the dummy's bound.")] if inert or not top else
+              if above else "none lies above the inert floor.")] if inert or not top else
           ["Settings that decide the discrepancy most (PAWN's first tied group, above an inert "
            "dummy setting): " + ", ".join(top) + "."]),
     ]
@@ -169,6 +167,16 @@ def _fresh(pl: dict, fr: dict | None, far: str) -> str:
             + _resolution(fr, far))
 
 
+def _both(pl: dict, fr: dict | None, block: str) -> str:
+    """A power block's counts on the truths the rule was revised against, and on the fresh
+    ones at the same distances."""
+    def counts(x: dict, keys) -> str:
+        return ", ".join(f"{d}: {x[block][d]['k']:.0f} of {x[block][d]['n']:.0f}" for d in keys)
+
+    said = counts(pl, pl[block]) + " on the truths it was revised against"
+    return said + (f"; {counts(fr, pl[block])} on the fresh ones" if fr else "")
+
+
 def _resolution(fr: dict, far: str) -> str:
     """Where the rule reaches 90 % power out of sample: the fresh truths' longer distances
     (added once the power at ``far`` was seen), overall, along moves that keep every discrete
@@ -183,14 +191,20 @@ def _resolution(fr: dict, far: str) -> str:
                          f"[{100 * fr[block][d]['ci_low']:.1f}, "
                          f"{100 * fr[block][d]['ci_high']:.1f}]" for d in longer)
 
-    where = (f"Its power first reaches {100 * res['target']:.0f} % at distance {res['point']:g}"
-             + (f", where its whole interval clears {100 * res['target']:.0f} %"
-                if res["interval"] == res["point"] else ", at its point estimate only")
-             if res["point"] is not None else
-             f"It reaches {100 * res['target']:.0f} % power at no measured distance")
+    t = f"{100 * res['target']:.0f} %"
+    if res["point"] is None:
+        where = f"It reaches {t} power at no measured distance"
+    else:
+        where = (f"Its power first reaches {t} at distance {res['point']:g}, "
+                 + ("where its whole interval clears it" if res["interval"] == res["point"]
+                    else f"its whole interval first at {res['interval']:g}"
+                    if res["interval"] is not None else
+                    "at its point estimate only: no measured interval clears it"))
     short = [d for d in longer if pw[d]["ci_low"] < res["target"]]
-    return (" Added once that power was seen, longer moves are ruled out at distance "
-            + ", ".join(f"{d}: {_pct(pw[d])}" for d in longer) + " (median actual distances "
+    after = [f"{d:g}" for d in fr.get("added_after_seen", [])]
+    return ((" Added once that power was seen, longer moves" if after else " Longer moves")
+            + " are ruled out " + ", ".join(f"{_pct(pw[d])} of the time at {d}" for d in longer)
+            + " (median actual distances "
             + ", ".join(f"{pw[d]['actual_distance_median']:.2f}" for d in longer)
             + ": reflection at the cube's edges shortens them). " + where
             + (f"; the interval at {', '.join(short)} reaches below it" if short else "")
@@ -273,15 +287,13 @@ def _answer_sensitivity(r: dict) -> list[str]:
         return ", ".join(g[:6]) + ("..." if len(g) > 6 else "")
 
     rows = []
+    cen = sen.get("every_point", {}).get("outputs", {})
     for o in ("rms_log_ratio", "margin:adaptive-pid", "margin:backstepping", "diverged_share"):
         x = sen["indices"].get(o)
         if x:
-            ties = [*x["ties"][:2], [], []][:2]
-            cen = sen.get("every_point", {}).get(o)
-            rows.append([o, x.get("n", sen["n"]), *[group(g) if g else "—" for g in ties],
-                         len(x["above_dummy"]),
-                         "—" if cen is None or o == "diverged_share" else len(cen["above_dummy"]),
-                         f"{x['dummy_high']:.3f}"])  # fmt: skip
+            clear, near = _above(x, cen.get(o))
+            rows.append([o, x["n"], group(x["ties"][0]), group(clear) or "none",
+                         group(near) or "none", f"{x['dummy_high']:.3f}"])  # fmt: skip
     scr = r["screening"]
     fixed = [n for n in r["prior"] if not r["prior"][n].get("varied", True)]
     return ["\n".join([
@@ -293,26 +305,42 @@ def _answer_sensitivity(r: dict) -> list[str]:
         "points are median KS statistics, bounded in [0, 1]. Divergence is its own output (the "
         "share of diverged runs, on every point); each tracking output is analysed on the "
         "points where none of the runs it needs diverged (its n), so it describes the "
-        "settings that track. Beside it, the same output on every point with a diverged run "
-        f"ranked worst (PAWN reads only ranks): {_moved(sen)}. The settings of a tied group "
-        "have overlapping intervals; the first two groups are shown, at most six names each:",
-        "",
-        *common.md_table(["output", "n", "first tied group", "second tied group",
-                          "settings above the dummy's bound",
-                          "above it on every point (diverged ranked worst)",
-                          "the dummy's bound"], rows),
+        "settings that track. The inert floor is the 95th percentile of the index of "
+        "independent random columns. A setting is clearly above it when its interval's lower "
+        "end is, and, for a law's log RMSE and the discrepancy, stays so when the points the "
+        "tracked analysis leaves out are added back ranked worst (placed past the worst "
+        "tracked value); a setting above the floor otherwise is near it. "
+        f"{_moved(sen)} The settings of a tied group have "
+        "overlapping intervals; the first is shown, at most six names:", "",
+        *(common.md_table(["output", "n", "first tied group", "clearly above the floor",
+                           "near the floor", "the floor"], rows) if rows else
+          ["(No output has enough points for PAWN at this level.)"]),
     ])]  # fmt: skip
 
 
+def _above(x: dict, cen: dict | None) -> tuple[list[str], list[str]]:
+    """An output's settings above the inert floor: clearly (its interval's lower end above the
+    floor, and likewise on every point where that analysis exists) or near it."""
+    above = list(x["above_dummy"])
+
+    def clear_in(y: dict, n: str) -> bool:
+        return y["indices"][n]["low"] > y["dummy_high"]
+
+    clear = [n for n in above if clear_in(x, n) and (cen is None or clear_in(cen, n))]
+    return clear, [n for n in above if n not in clear]
+
+
 def _moved(sen: dict) -> str:
-    """How many tracking outputs' settings above the dummy differ between the tracked points
-    and every point (a diverged run ranked worst)."""
-    both = [(x, sen["every_point"][o]) for o, x in sen["indices"].items()
-            if x and sen.get("every_point", {}).get(o)]  # fmt: skip
-    moved = sum(set(x["above_dummy"]) != set(c["above_dummy"]) for x, c in both)
-    return (f"the settings above the dummy's bound differ between the two for {moved} of "
-            f"{len(both)} outputs" + (", so a setting's place above the bound is within the "
-                                      "noise of the choice" if moved else ""))
+    """How many of the tracking outputs' settings above the inert floor are clearly above it."""
+    cen = sen.get("every_point", {}).get("outputs", {})
+    pairs = [_above(x, cen.get(o)) for o, x in sen["indices"].items()
+             if x and o != "diverged_share"]  # fmt: skip
+    if not pairs:
+        return "No tracking output has enough points for PAWN here."
+    clear, near = sum(len(c) for c, _ in pairs), sum(len(n) for _, n in pairs)
+    return (f"Over the {len(pairs)} tracking outputs, {clear} of the {clear + near} places "
+            f"above the floor are clear of it and {near} near it (their intervals reach below "
+            "the floor, or they are not above it on every point).")
 
 
 def _vol(x: float) -> str:

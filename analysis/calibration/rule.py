@@ -70,7 +70,8 @@ from analysis.calibration import prior
 from wmr.stats import clopper_pearson
 
 __all__ = ["LEVEL", "DISTANCES", "DECIDE_AT", "FRESH_DISTANCES", "TRUTH_SEED0", "PLANT_SEED",
-           "FRESH_PLANT_SEED", "FRESH_TRUTH_SEED0", "planted_fresh", "DELTAS", "DELTA", "RULES",
+           "FRESH_PLANT_SEED", "FRESH_TRUTH_SEED0", "ADDED_AFTER_SEEN", "planted_fresh",
+           "DELTAS", "DELTA", "RULES",
            "RULE", "DIVERGENCE_RULE", "DIVERGENCE_LEVEL", "divergence_score", "threshold",
            "per_number_threshold", "effective_dof", "implausibility", "CAP", "capped",
            "printed_round", "clopper_pearson", "proportion", "planted", "judge",
@@ -84,6 +85,8 @@ DISTANCES = (0.1, 0.2, 0.3)
 #: loose); the fresh truths also go further, to find the distance the rule does resolve.
 DECIDE_AT = 0.3
 FRESH_DISTANCES = (0.1, 0.2, 0.3, 0.4, 0.5)
+#: The fresh distances added once the fresh power at :data:`DECIDE_AT` was seen (83 %).
+ADDED_AFTER_SEEN = (0.4, 0.5)
 #: Planted truths' "paper" runs use seeds TRUTH_SEED0 + t (never a rule seed: those are < 1000).
 TRUTH_SEED0 = 100_000
 #: The generators of the planted settings and directions (truth t's: ``[PLANT_SEED, t]``).
@@ -350,6 +353,8 @@ def _planted_at(res, per, n_truths, distances, away, kept, c, delta, rl) -> dict
                                             "q90": float(np.quantile(it, 0.9)),
                                             "max": float(it.max())},
             "max_implausibility_truth": it.tolist(), "max_implausibility_away": ia.tolist(),
+            "truth_all_finite": [bool(x) for x in fin],
+            "actual_distance": [[float(a[j][1]) for j in range(len(distances))] for a in away],
             "largest_at_truth": {prior.NUMBER_NAMES[i]: int(n) for i, n in enumerate(worst)
                                  if n}}  # fmt: skip
 
@@ -388,6 +393,7 @@ def planted_fresh(ev, space, n_truths: int, rule_seeds: Sequence[int]) -> dict:
     the power at 0.3 was seen (83 %), to find where the rule reaches 90 %."""
     out = planted(ev, space, n_truths, rule_seeds, FRESH_DISTANCES, seed=FRESH_PLANT_SEED,
                   truth_seed0=FRESH_TRUTH_SEED0)
+    out["added_after_seen"] = list(ADDED_AFTER_SEEN)
     for key in ("truths_u", "by_delta_earlier_threshold"):
         out.pop(key)
     return out

@@ -300,11 +300,16 @@ def sensitivity(level: Level, space: Space, des: dict) -> dict:
     outputs = [*OUTPUTS, "diverged_share"]
     ix = pawn.pawn(des["u"], np.column_stack([Y, div]), list(space.names), outputs,
                    seed=DESIGN_SEED, resamples=level.pawn_resamples)  # fmt: skip
-    # beside it, every point with a diverged run at the placeholder: PAWN reads only ranks, so
-    # that ranks a diverged run worst (censored) instead of leaving its point out
-    Yc = np.stack([run_outputs(a).mean(axis=0) for a in des["results"]])
-    cen = pawn.pawn(des["u"], Yc, list(space.names), list(OUTPUTS), seed=DESIGN_SEED,
-                    resamples=level.pawn_resamples)  # fmt: skip
+    # beside it, every point, a point the tracked analysis leaves out placed past the worst
+    # tracked value (censored: PAWN reads only ranks, so this ranks it worst), for the outputs
+    # whose worse end is clear (a law's log RMSE, the rms log ratio: larger is worse)
+    worse = [i for i, o in enumerate(OUTPUTS) if o.startswith("log_rmse:") or o == "rms_log_ratio"]
+    Yc = Y[:, worse].copy()
+    for j in range(Yc.shape[1]):
+        gone = ~np.isfinite(Yc[:, j])
+        Yc[gone, j] = np.nanmax(Yc[:, j]) + 1.0 if (~gone).any() else 0.0
+    cen = pawn.pawn(des["u"], Yc, list(space.names), [OUTPUTS[i] for i in worse],
+                    seed=DESIGN_SEED, resamples=level.pawn_resamples)  # fmt: skip
     return {"method": "PAWN (Pianosi & Wagener 2015; SALib.analyze.pawn's slicing, "
                       f"{pawn.SLICES} slices, median KS), a dummy setting as the floor, "
                       f"{level.pawn_resamples} bootstrap resamples of the design's rows "
@@ -313,12 +318,11 @@ def sensitivity(level: Level, space: Space, des: dict) -> dict:
                       "diverged (its n), the diverged share on every point",
             "n": int(len(des["u"])), "outputs": outputs, "factors": list(space.names),
             "indices": ix,
-            "every_point": {"note": "each tracking output on every point, a diverged run "
-                                    f"at {prior.DIVERGED_RMSE:g} m (ranked worst)",
-                            **{o: None if x is None else {
-                                "n": x["n"], "above_dummy": x["above_dummy"],
-                                "dummy_high": x["dummy_high"], "first_tied": x["ties"][0]}
-                               for o, x in cen.items()}}}  # fmt: skip
+            "every_point": {"note": "a law's log RMSE and the rms log ratio on every point, a "
+                                    "point with a diverged run it needs placed past the worst "
+                                    "tracked value (+1 on the log scale: ranked worst); the "
+                                    "margins and the tau have no worse end and are left out",
+                            "outputs": cen}}  # fmt: skip
 
 
 def ranking(des: dict, level: Level) -> dict:
