@@ -290,7 +290,9 @@ def _power_short(x: dict) -> str:
     from analysis.calibration.rule import DECIDE_AT
 
     pw = x["power"][f"{DECIDE_AT:g}"]
-    # the first longer distance reaching 90 %: the record's resolves_at (calibration.check)
+    # the first longer distance reaching 90 %: the record's resolves_at (calibration.check
+    # asserts the two agree; read off the power's keys so that it survives a record whose
+    # floats are perturbed, as tests/test_summary.py does)
     res = min((d for d, y in x["power"].items() if float(d) > DECIDE_AT and y["p"] >= 0.9),
               key=float, default=None)  # fmt: skip
     if not x["too_loose"]:
@@ -300,7 +302,7 @@ def _power_short(x: dict) -> str:
         verdict = ": too loose by the 90 % criterion at every distance measured"
     else:
         y = x["power"][res]
-        verdict = (": too loose by the 90 % criterion "
-                   f"({int(y['k'])} of {int(y['n'])} at {y['distance']:g})")
+        verdict = (": too loose by the 90 % criterion, reached only at "
+                   f"{y['distance']:g} ({int(y['k'])} of {int(y['n'])}), a distance added later")
     return (f"rules out {int(pw['k'])} of {int(pw['n'])} points {pw['distance']:g} away "
             "(unit cube)" + verdict)

@@ -54,9 +54,17 @@ def planted(pl: dict, distances) -> None:
             proportion(pl[block][key])
     for x in (pl["coverage"], pl["coverage_all_finite"]):
         proportion(x)
-    for block in pl["by_delta"].values():  # the same runs at other discrepancies
+    # the same runs at other discrepancies and at the earlier threshold: each proportion is its
+    # count's (the counts themselves are not recounted: the per-truth values are recorded at
+    # the verdict's discrepancy only)
+    earlier = {k: v for k, v in pl.get("by_delta_earlier_threshold", {}).items()
+               if isinstance(v, dict)}  # fmt: skip
+    for block in [*pl["by_delta"].values(), *earlier.values()]:
         for x in (block["coverage"], *block["power"].values()):
             proportion(x)
+    if "added_after_seen" in pl:  # the fresh block: the distances added once it was seen
+        assert pl["added_after_seen"] == list(rule.ADDED_AFTER_SEEN), pl["added_after_seen"]
+        assert {f"{d:g}" for d in pl["added_after_seen"]} <= set(pl["power"])
     power = pl["power"]
     assert pl["too_loose"] == (power[f"{rule.DECIDE_AT:g}"]["p"] < 0.9)
     reach = [float(d) for d, pw in power.items() if pw["p"] >= 0.9]
@@ -80,15 +88,23 @@ def pawn(record: dict) -> None:
         else:
             assert tracked <= x["n"] <= pts["n"], (o, x["n"])
         _pawn_entry(x, o)
-    for o, x in sen.get("every_point", {}).get("outputs", {}).items():
+    # the every-point analysis: exactly the outputs with a worse end (a law's log RMSE, the
+    # discrepancy) whose tracked analysis exists; the report's clear/near split reads it
+    every = sen["every_point"]["outputs"]
+    worse = [o for o, x in sen["indices"].items()
+             if x is not None and (o.startswith("log_rmse:") or o == "rms_log_ratio")]
+    assert sorted(o for o, x in every.items() if x is not None) == sorted(worse), list(every)
+    for o, x in every.items():
         if x is not None:
             assert x["n"] == pts["n"], (o, x["n"])
             _pawn_entry(x, o)
 
 
 def _pawn_entry(x: dict, o: str) -> None:
-    """One output's PAWN entry: the settings above the floor are those whose index exceeds
-    it; the tied groups are :func:`pawn.ties` of the indices."""
+    """One output's PAWN entry: the settings above the inert floor (``dummy_high``, the null's
+    95th percentile) are those whose index exceeds it; the tied groups are :func:`pawn.ties` of
+    the indices.  The indices, intervals and floor themselves are not recomputed (the design's
+    outputs are not in the record)."""
     names = [n for n in x["indices"] if n != "dummy"]
     assert x["above_dummy"] == [n for n in names
                                 if x["indices"][n]["index"] > x["dummy_high"]], o

@@ -173,7 +173,7 @@ def sensitivity_bars(record: dict):
     for ax in list(axes.flat)[n:]:
         ax.set_axis_off()
     fig.suptitle(f"PAWN indices (median KS, N = {sen['n']} design points, 95 % bootstrap); "
-                 "grey: up to the dummy setting's upper bound", fontsize=10)
+                 "grey: up to the inert floor (the null's 95th percentile)", fontsize=10)
     return fig
 
 

@@ -26,8 +26,11 @@ def _label(name: str) -> str:
 
 
 def _pct(p: dict) -> str:
+    if p["p"] == 0.0 and "n_runs" in p:  # a count of runs, its bound over the design's points
+        return (f"0 of {p['n_runs']} runs (over {p['n_points']} points: at most "
+                f"{100 * p['ci_high']:.1f} %)")
     if p["p"] == 0.0:
-        return f"0 of {p.get('n_runs', p.get('n'))} (at most {100 * p['ci_high']:.1f} %)"
+        return f"0 of {p.get('n')} (at most {100 * p['ci_high']:.1f} %)"
     return f"{100 * p['p']:.1f} % [{100 * p['ci_low']:.1f}, {100 * p['ci_high']:.1f}]"
 
 
@@ -38,9 +41,8 @@ def _answer(r: dict) -> list[str]:
     far = max(pl["power"], key=float)  # the farthest distance: where a rule must decide
     v = ver["by_delta"][f"{ver['delta']:g}"]
     sens = r["sensitivity"]["pawn"]["indices"].get("rms_log_ratio")
-    top = [n for n in sens["ties"][0] if n != "dummy"] if sens else []
-    inert = bool(sens) and "dummy" in sens["ties"][0]
-    above = list(sens.get("above_dummy", [])) if sens else []
+    cen = r["sensitivity"]["pawn"].get("every_point", {}).get("outputs", {})
+    clear, near = _above(sens, cen.get("rms_log_ratio")) if sens else ([], [])
     rule = [
         f"**The answer.** The rule is history-matching implausibility on log RMSE, with "
         f"{r['rule']['K']} seeds per candidate and threshold {ver['threshold']:.2f}.",
@@ -120,16 +122,12 @@ def _answer(r: dict) -> list[str]:
         "controller whose run diverged is ranked last in its table).",
         *(["PAWN has no index of the discrepancy here: too few points where every run "
            "tracked."] if not sens else
-          [f"On the {sens['n']} points where every run tracked, PAWN's first "
-           "tied group on the discrepancy holds an inert dummy setting and "
-           f"{len(top)} settings, so it ranks none of them; "
-           + (f"{len(above)} {'has an estimate' if len(above) == 1 else 'have estimates'} above "
-              f"the inert floor ({', '.join(above)}), yet "
-              f"{'its interval overlaps' if len(above) == 1 else 'their intervals overlap'} the "
-              "dummy's: tied with it."
-              if above else "none lies above the inert floor.")] if inert or not top else
-          ["Settings that decide the discrepancy most (PAWN's first tied group, above an inert "
-           "dummy setting): " + ", ".join(top) + "."]),
+          [f"On the {sens['n']} points where every run tracked, PAWN puts "
+           + (f"{', '.join(clear)} clearly above its inert floor on the discrepancy (the "
+              "settings that decide it)" if clear else
+              "no setting clearly above its inert floor on the discrepancy")
+           + (f"; {', '.join(near)} {'is' if len(near) == 1 else 'are'} above it but near it "
+              "(intervals reaching the floor or the dummy's)" if near else "") + "."]),
     ]
     deltas = sorted(set(pl.get("by_delta", {})) | set(ver["by_delta"]), key=float)
     rows = []
@@ -171,10 +169,12 @@ def _both(pl: dict, fr: dict | None, block: str) -> str:
     """A power block's counts on the truths the rule was revised against, and on the fresh
     ones at the same distances."""
     def counts(x: dict, keys) -> str:
-        return ", ".join(f"{d}: {x[block][d]['k']:.0f} of {x[block][d]['n']:.0f}" for d in keys)
+        return ", ".join(f"{d}: {x[block][d]['k']:.0f} of {x[block][d]['n']:.0f} "
+                         f"[{100 * x[block][d]['ci_low']:.0f}, {100 * x[block][d]['ci_high']:.0f}]"
+                         for d in keys)  # fmt: skip
 
     said = counts(pl, pl[block]) + " on the truths it was revised against"
-    return said + (f"; {counts(fr, pl[block])} on the fresh ones" if fr else "")
+    return said + (f". On the fresh ones: {counts(fr, pl[block])}" if fr else "")
 
 
 def _resolution(fr: dict, far: str) -> str:
@@ -202,8 +202,9 @@ def _resolution(fr: dict, far: str) -> str:
                     "at its point estimate only: no measured interval clears it"))
     short = [d for d in longer if pw[d]["ci_low"] < res["target"]]
     after = [f"{d:g}" for d in fr.get("added_after_seen", [])]
-    return ((" Added once that power was seen, longer moves" if after else " Longer moves")
-            + " are ruled out " + ", ".join(f"{_pct(pw[d])} of the time at {d}" for d in longer)
+    return ((f" Longer moves (distances {', '.join(after)}, added to the design after its fresh "
+             f"power at {far} was first seen)" if after else " Longer moves") + " are ruled out "
+            + ", ".join(f"{_pct(pw[d])} of the time at {d}" for d in longer)
             + " (median actual distances "
             + ", ".join(f"{pw[d]['actual_distance_median']:.2f}" for d in longer)
             + ": reflection at the cube's edges shortens them). " + where
@@ -288,14 +289,21 @@ def _answer_sensitivity(r: dict) -> list[str]:
 
     rows = []
     cen = sen.get("every_point", {}).get("outputs", {})
-    for o in ("rms_log_ratio", "margin:adaptive-pid", "margin:backstepping", "diverged_share"):
-        x = sen["indices"].get(o)
+    for o, x in sen["indices"].items():
         if x:
             clear, near = _above(x, cen.get(o))
-            rows.append([o, x["n"], group(x["ties"][0]), group(clear) or "none",
+            first = x["ties"][0]
+            rows.append([o, x["n"], group(first) + (" (the dummy among them)" if "dummy" in first
+                                                      else ""), group(clear) or "none",
                          group(near) or "none", f"{x['dummy_high']:.3f}"])  # fmt: skip
     scr = r["screening"]
     fixed = [n for n in r["prior"] if not r["prior"][n].get("varied", True)]
+    screened = (f"**Which unstated settings decide it?** Morris screening "
+                f"({scr['trajectories']} trajectories, {scr['points']} points) fixed "
+                f"{len(fixed)} settings ({', '.join(fixed) or 'none'}).")
+    if not rows:
+        return [screened + f" No output has enough of the design's {sen['n']} points for PAWN "
+                "at this level."]
     return ["\n".join([
         "**Which unstated settings decide it?** Morris screening "
         f"({scr['trajectories']} trajectories, {scr['points']} points) fixed {len(fixed)} "
@@ -307,24 +315,25 @@ def _answer_sensitivity(r: dict) -> list[str]:
         "points where none of the runs it needs diverged (its n), so it describes the "
         "settings that track. The inert floor is the 95th percentile of the index of "
         "independent random columns. A setting is clearly above it when its interval's lower "
-        "end is, and, for a law's log RMSE and the discrepancy, stays so when the points the "
+        "end is above both the floor and the dummy setting's interval, and, for a law's log "
+        "RMSE and the discrepancy, stays so when the points the "
         "tracked analysis leaves out are added back ranked worst (placed past the worst "
         "tracked value); a setting above the floor otherwise is near it. "
         f"{_moved(sen)} The settings of a tied group have "
         "overlapping intervals; the first is shown, at most six names:", "",
-        *(common.md_table(["output", "n", "first tied group", "clearly above the floor",
-                           "near the floor", "the floor"], rows) if rows else
-          ["(No output has enough points for PAWN at this level.)"]),
+        *common.md_table(["output", "n", "first tied group", "clearly above the floor",
+                          "near the floor", "the floor"], rows),
     ])]  # fmt: skip
 
 
 def _above(x: dict, cen: dict | None) -> tuple[list[str], list[str]]:
-    """An output's settings above the inert floor: clearly (its interval's lower end above the
-    floor, and likewise on every point where that analysis exists) or near it."""
+    """An output's settings above the inert floor: clearly (its interval's lower end above
+    both the floor and the dummy setting's own interval, and likewise on every point where
+    that analysis exists) or near it."""
     above = list(x["above_dummy"])
 
     def clear_in(y: dict, n: str) -> bool:
-        return y["indices"][n]["low"] > y["dummy_high"]
+        return y["indices"][n]["low"] > max(y["dummy_high"], y["indices"]["dummy"]["high"])
 
     clear = [n for n in above if clear_in(x, n) and (cen is None or clear_in(cen, n))]
     return clear, [n for n in above if n not in clear]
@@ -339,8 +348,8 @@ def _moved(sen: dict) -> str:
         return "No tracking output has enough points for PAWN here."
     clear, near = sum(len(c) for c, _ in pairs), sum(len(n) for _, n in pairs)
     return (f"Over the {len(pairs)} tracking outputs, {clear} of the {clear + near} places "
-            f"above the floor are clear of it and {near} near it (their intervals reach below "
-            "the floor, or they are not above it on every point).")
+            f"above the floor are clear of it and {near} near it (their intervals reach the "
+            "floor or the dummy's, or are not clear of them on every point).")
 
 
 def _vol(x: float) -> str:
