@@ -353,6 +353,19 @@ def test_a_task_cut_by_an_interruption_runs_only_its_missing_runs(tmp_path):
     assert np.array_equal(arr, run_task(task)[1], equal_nan=True)
 
 
+def test_the_fair_tuning_has_a_store_of_its_own():
+    """The fair tuning's code (its arms, the tuning stage, the regime study's documents) is in
+    the fair store's digest and not in the other stages' one: changing it leaves the design's,
+    the planted truths' and the fit's runs where they are."""
+    from analysis.calibration.store import digest_inputs, store_digest
+
+    names = {p.name for p in digest_inputs()}
+    fair = {p.name for p in digest_inputs(fair=True)}
+    assert {"fair.py", "tuning.py", "design.py"} <= fair - names
+    assert "prior.py" in names and names <= fair
+    assert store_digest("medium", fair=True) != store_digest("medium")
+
+
 def test_the_store_digest_covers_the_shipped_scenarios_it_reads(tmp_path, monkeypatch):
     from analysis.calibration.store import store_digest
 

@@ -7,7 +7,9 @@ has not seen before as jobs of the one engine (``wmr.engine``: one ``Job`` per r
 batches, retries and store) and keeps every run's row in a ``wmr.engine.store.ShardStore``:
 
 - ``manifest.json``: the store's digest (:func:`store_digest`: wmr's sources, the calibration's
-  own code, the shipped scenario files it reads) and counts;
+  own code, the shipped scenario files it reads) and counts;  the fair tuning's held-out runs
+  have a store of their own (``<folder>-fair``), whose digest adds the fair tuning's code, so
+  that changing it does not set aside the other stages' runs;
 - ``rows/part-*.parquet``: immutable shards, one row per (task, seed, run), the engine's row
   (``wmr.engine.jobs.job_row``) with ``job_id = "<key>/<seed index>/<case>"`` and the labels
   ``key``, ``i_seed``, ``case``.
@@ -105,27 +107,38 @@ def _schema():
     return pa.schema(cols + [(c, getattr(pa, COLUMN_TYPES[c])()) for c in RESULT])
 
 
-def store_digest(extra: str = "") -> str:
-    """What the runs of a task depend on: wmr's sources, the prior (settings to scenarios,
-    ``prior.py``), the fair tuning's arms, held-out runs and tuning stage (``fair.py``,
-    ``analysis/tuning.py``, the regime study's ``design.py``), the shipped scenario files
-    the prior and the held-out runs read (``wmr/scenarios/<paper scenario>.toml``),
-    :func:`task_jobs` and :func:`task_array` (a task's runs and its result from their rows),
-    :data:`METRICS`; and ``extra``.  The stages that only
-    summarise runs are not in it: changing them reuses the store."""
-    import inspect
-
+def digest_inputs(fair: bool = False) -> list[Path]:
+    """The files a store's runs depend on besides wmr's sources: the prior (settings to
+    scenarios, ``prior.py``) and the shipped scenario files it reads
+    (``wmr/scenarios/<paper scenario>.toml``); for the fair tuning's store (``fair``) also its
+    arms and held-out runs (``fair.py``), the tuning stage (``analysis/tuning.py``) and the
+    regime study's ``design.py`` (the held-out and training documents).  The screening, design,
+    planted truths, waves, fit and verdict run only what the prior defines, so a change to the
+    fair tuning leaves their store as it is."""
     from analysis.calibration import prior
     from wmr import scenario as scn
+
+    here = Path(__file__).resolve().parent
+    files = [here / "prior.py", *(scn.builtin(name) for name in prior.SCENARIOS)]
+    if fair:
+        files += [here / "fair.py", here.parent / "tuning.py",
+                  here.parent / "regimes" / "design.py"]
+    return files
+
+
+def store_digest(extra: str = "", fair: bool = False) -> str:
+    """What the runs of a store's tasks depend on: wmr's sources, :func:`digest_inputs`,
+    :func:`task_jobs` and :func:`task_array` (a task's runs and its result from their rows),
+    :data:`METRICS`; and ``extra``.  The stages that only summarise runs are not in it:
+    changing them reuses the store."""
+    import inspect
+
     from wmr._jit import source_digest
     from wmr.engine.store import digest_files
 
-    here = Path(__file__).resolve().parent
-    files = [here / "prior.py", here / "fair.py", here.parent / "tuning.py",
-             here.parent / "regimes" / "design.py"]
-    files += [scn.builtin(name) for name in prior.SCENARIOS]
     code = "".join(inspect.getsource(f) for f in (task_jobs, task_array))
-    return digest_files(files, "\0".join((source_digest(), code, repr((METRICS, COLUMNS)), extra)))
+    parts = (source_digest(), code, repr((METRICS, COLUMNS)), extra, "fair" if fair else "")
+    return digest_files(digest_inputs(fair), "\0".join(parts))
 
 
 def _arrays(table, tasks: dict[str, Task] | None = None) -> dict[str, np.ndarray]:
