@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from analysis.calibration import pawn as pawnmod
-from analysis.calibration import rule
+from analysis.calibration import rule, stages
 
 __all__ = ["proportion", "planted", "pawn"]
 
@@ -79,10 +79,10 @@ def pawn(record: dict) -> None:
     the dummy's bound; its tied groups partition the settings and the dummy."""
     sen, pts = record["sensitivity"]["pawn"], record["points"]
     tracked = pts["n"] - pts["n_diverged_points"]
+    want = {"diverged_share": pts["n"], "rms_log_ratio": tracked, "kendall_tau": tracked}
     for o, x in sen["indices"].items():
         if x is None:
             continue
-        want = {"diverged_share": pts["n"], "rms_log_ratio": tracked, "kendall_tau": tracked}
         if o in want:
             assert x["n"] == want[o], (o, x["n"], want[o])
         else:
@@ -91,8 +91,7 @@ def pawn(record: dict) -> None:
     # the every-point analysis: exactly the outputs with a worse end (a law's log RMSE, the
     # discrepancy) whose tracked analysis exists; the report's clear/near split reads it
     every = sen["every_point"]["outputs"]
-    worse = [o for o, x in sen["indices"].items()
-             if x is not None and (o.startswith("log_rmse:") or o == "rms_log_ratio")]
+    worse = [o for o in stages.WORSE_END if sen["indices"].get(o) is not None]
     assert sorted(o for o, x in every.items() if x is not None) == sorted(worse), list(every)
     for o, x in every.items():
         if x is not None:

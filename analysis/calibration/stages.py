@@ -41,6 +41,9 @@ DESIGN_SEED = 0
 OUTPUTS = tuple([f"log_rmse:{c}" for c in prior.CONTROLLERS]
                 + [f"margin:{c}" for c in prior.CONTROLLERS[1:]]
                 + ["rms_log_ratio", "kendall_tau"])  # fmt: skip
+#: The outputs with a clear worse end (larger is worse: a law's log RMSE, the rms log ratio):
+#: the ones the sensitivity also analyses on every point, a left-out point ranked worst.
+WORSE_END = tuple(o for o in OUTPUTS if o.startswith("log_rmse:") or o == "rms_log_ratio")
 #: Screening outputs: OUTPUTS and the log position RMSE of each (scenario, controller).
 SCREEN_OUTPUTS = OUTPUTS + tuple(f"log_rmse:{s}/{c}" for s in prior.SCENARIOS
                                  for c in prior.CONTROLLERS)  # fmt: skip
@@ -303,13 +306,13 @@ def sensitivity(level: Level, space: Space, des: dict) -> dict:
     # beside it, every point, a point the tracked analysis leaves out placed past the worst
     # tracked value (censored: PAWN reads only ranks, so this ranks it worst), for the outputs
     # whose worse end is clear (a law's log RMSE, the rms log ratio: larger is worse)
-    worse = [i for i, o in enumerate(OUTPUTS) if o.startswith("log_rmse:") or o == "rms_log_ratio"]
+    worse = [OUTPUTS.index(o) for o in WORSE_END]
     Yc = Y[:, worse].copy()
     for j in range(Yc.shape[1]):
         gone = ~np.isfinite(Yc[:, j])
         Yc[gone, j] = np.nanmax(Yc[:, j]) + 1.0 if (~gone).any() else 0.0
-    cen = pawn.pawn(des["u"], Yc, list(space.names), [OUTPUTS[i] for i in worse],
-                    seed=DESIGN_SEED, resamples=level.pawn_resamples)  # fmt: skip
+    cen = pawn.pawn(des["u"], Yc, list(space.names), list(WORSE_END), seed=DESIGN_SEED,
+                    resamples=level.pawn_resamples)  # fmt: skip
     return {"method": "PAWN (Pianosi & Wagener 2015; SALib.analyze.pawn's slicing, "
                       f"{pawn.SLICES} slices, median KS), a dummy setting as the floor, "
                       f"{level.pawn_resamples} bootstrap resamples of the design's rows "
