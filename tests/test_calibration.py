@@ -361,7 +361,7 @@ def test_the_fair_tuning_has_a_store_of_its_own():
 
     names = {p.name for p in digest_inputs()}
     fair = {p.name for p in digest_inputs(fair=True)}
-    assert {"fair.py", "tuning.py", "design.py"} <= fair - names
+    assert {"fair.py", "tuning.py", "design.py", "lemniscate-payload.toml"} <= fair - names
     assert "prior.py" in names and names <= fair
     assert store_digest("medium", fair=True) != store_digest("medium")
 

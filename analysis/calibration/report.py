@@ -406,7 +406,7 @@ def notes(record: dict) -> str:
     sizes = (f"{record['planted']['n_truths']} planted truths, {record['points']['n']:,} design "
              f"points and {len(record['best_fit']['restarts'])} CMA-ES restarts")
     out.append(f"**Level: {record['level']}** ({sizes}), {_level_note(record)}. Cost: "
-               f"{c['runs_in_store']:,} runs in the store; {c['runs_total']:,} runs were "
+               f"{c['runs_in_store']:,} runs in its stores; {c['runs_total']:,} runs were "
                f"run for it in {c['seconds_running_total']:.0f} s of running over every "
                f"invocation ({c['runs_this_time']:,} runs and {c['seconds']:.0f} s wall in "
                f"the last, on {c['engine']}). The fitted settings: "

@@ -111,18 +111,22 @@ def digest_inputs(fair: bool = False) -> list[Path]:
     """The files a store's runs depend on besides wmr's sources: the prior (settings to
     scenarios, ``prior.py``) and the shipped scenario files it reads
     (``wmr/scenarios/<paper scenario>.toml``); for the fair tuning's store (``fair``) also its
-    arms and held-out runs (``fair.py``), the tuning stage (``analysis/tuning.py``) and the
-    regime study's ``design.py`` (the held-out and training documents).  The screening, design,
-    planted truths, waves, fit and verdict run only what the prior defines, so a change to the
-    fair tuning leaves their store as it is."""
+    arms and held-out runs (``fair.py``), the tuning stage (``analysis/tuning.py``), the
+    regime study's ``design.py`` (the held-out and training documents) and the MuJoCo robot's
+    scenario files whose ``[plant]`` blocks those documents copy (``design.MUJOCO``).  The
+    screening, design, planted truths, waves, fit and verdict run only what the prior defines,
+    so a change to the fair tuning leaves their store as it is."""
     from analysis.calibration import prior
     from wmr import scenario as scn
 
     here = Path(__file__).resolve().parent
     files = [here / "prior.py", *(scn.builtin(name) for name in prior.SCENARIOS)]
     if fair:
+        from analysis.regimes import design
+
         files += [here / "fair.py", here.parent / "tuning.py",
-                  here.parent / "regimes" / "design.py"]
+                  here.parent / "regimes" / "design.py",
+                  *(scn.builtin(name) for name in sorted(set(design.MUJOCO.values())))]
     return files
 
 
