@@ -482,8 +482,10 @@ def _check_fair(fair: dict) -> None:
     failures, then mean log RMSE; each paired word follows from its counts and interval, each
     verdict from its four words, and "best" is claimed only where every verdict allows it."""
     from analysis.calibration import fair as fairmod
-    from analysis.calibration import verdicts
+    from analysis.calibration import fair_planted, verdicts
 
+    if "planted" in fair:  # records before it have none
+        fair_planted.check(fair["planted"])
     b = fair["budget"]
     for name, t in fair["arms"].items():
         want = b["per_setting"] * len(t["free"])

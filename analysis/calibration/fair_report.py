@@ -3,11 +3,14 @@ sentences computed from it only; ``analysis.calibration.report`` places them).""
 
 from __future__ import annotations
 
+import math
+
 from analysis import common
+from analysis.calibration.verdicts import EQUIV
 from analysis.common import fmt
 from wmr import controllers
 
-__all__ = ["answer", "short", "span", "summary_of"]
+__all__ = ["answer", "short", "span", "summary_of", "planted"]
 
 
 def span(seeds: list[int]) -> str:
@@ -267,4 +270,79 @@ def answer(r: dict) -> list[str]:
                               "optimum on an edge", "fail to track", "(runner-up)",
                               "median RMSE [m]", "(runner-up)", "at defaults [m]",
                               "ratio to the candidate best [95 % CI]", "cells",
-                              "at the four pairings", "verdict"], rows)])]  # fmt: skip
+                              "at the four pairings", "verdict"], rows)]), *planted(f)]  # fmt: skip
+
+
+def _pc(x: dict) -> str:
+    return f"{100 * x['share']:.0f} %"
+
+
+def planted(f: dict) -> list[str]:
+    """The comparison rule on planted truth (``analysis.calibration.fair_planted``): a
+    paragraph and a table; nothing where the record has no planted study or no comparison
+    with a noise estimate (fewer than 3 held-out seeds)."""
+    pl = f.get("planted")
+    done = {k: c for k, c in (pl or {}).get("comparisons", {}).items() if c["noise"]}
+    if not done:
+        return []
+    la, ratios, extra = pl["least_accepts"], pl["ratios"], pl["fail_extra"]
+
+    def at(c: dict, rho: float, fx: float = 0.0) -> dict:
+        return next(t for t in c["truths"] if t["rho"] == rho and t["f"] == fx)
+
+    shown = [r for r in ratios if r >= 1]
+    rows = [[k.replace("@raw", ""), f"{c['noise']['seed_sd']:.3f}", f"{c['noise']['pair_sd']:.3f}",
+             f"{100 * c['noise']['discordance']:.1f} %",
+             _pc(min((t["accepts"] for t in c["truths"]), key=lambda x: x["share"])),
+             *[_pc(at(c, r)["power"]) for r in shown],
+             *[_pc(at(c, 1.0, fx)["power"]) for fx in extra]]
+            for k, c in done.items()]  # fmt: skip
+    clean = {k: c for k, c in done.items() if c["noise"]["discordance"] == 0}
+    noisy = {k: c for k, c in done.items() if k not in clean}
+    text = [
+        f"**The rule on planted truth** ({pl['replicates']} synthetic comparisons per truth at "
+        "each comparison's own layout and noise, analysis/calibration/fair_planted.py). It "
+        f"accepts the truth in at least {100 * la['share']:.0f} % of them "
+        f"({la['k']}/{la['n']}, {100 * la['ci_low']:.1f}-{100 * la['ci_high']:.1f} %; target "
+        f"{100 * pl['accept_target']:.0f} %). " + _resolution(clean, ratios, at)
+        + "".join(f" In {k.replace('@raw', '')} ({100 * c['noise']['discordance']:.1f} % of "
+                  "runs fail to track at random) it names a planted "
+                  f"{max(ratios):g}x in {_pc(at(c, max(ratios))['power'])} of them: a failure "
+                  "difference of either sign, however small, makes a pairing 'mixed', and the "
+                  "pairings then disagree." for k, c in noisy.items()),
+        "",
+        "Columns: the seed effect's and a run's own noise [log units], the failures that vary "
+        "over the seeds, the least acceptance over the planted truths, the share naming a "
+        "planted ratio (equivalent inside +-5 %, else higher), and naming a planted extra "
+        "failure probability (fails more).",
+        "", *common.md_table(["comparison", "seed sd", "run sd", "random failures",
+                              "accepts the truth",
+                              *[f"{r:g}x ({'equiv.' if abs(math.log(r)) < EQUIV else 'higher'})"
+                                for r in shown],
+                              *[f"fails more +{100 * x:g} %" for x in extra]], rows)]  # fmt: skip
+    best = pl.get("best")
+    if best:
+        by = {b["rho"]: b for b in best["by_rho"]}
+        eq = by.get(1.0)
+        better = [b for r, b in by.items() if r < 1]
+        text += ["", f"The best-arm claim, on {len(f['ranking'])} arms at the comparisons' median "
+                 "noise: with every arm equal it claims a best in "
+                 f"{eq['claims']['k']}/{eq['claims']['n']} replicates"
+                 + "".join(f"; with one arm {100 * (1 - b['rho']):.0f} % better it claims that "
+                           f"arm in {b['right']['k']}/{b['right']['n']} and another in "
+                           f"{b['wrong']['k']}" for b in better) + "."]  # fmt: skip
+    return ["\n".join(text)]
+
+
+def _resolution(clean: dict, ratios: list[float], at) -> str:
+    """The smallest planted ratio every comparison without random failures names in 90 %."""
+    if not clean:
+        return ""
+    big = sorted(r for r in ratios if abs(math.log(r)) >= EQUIV and r > 1)
+    first = next((r for r in big if min(at(c, r)["power"]["share"] for c in clean.values())
+                  >= 0.9), None)  # fmt: skip
+    eq = min(at(c, 1.0)["power"]["share"] for c in clean.values())
+    said = (f"Where no run fails at random ({len(clean)} comparisons), each calls equal arms "
+            f"equivalent in at least {100 * eq:.0f} %")
+    return said + (f" and names a difference of {first:g}x in at least 90 %." if first else
+                   f"; none names every planted difference up to {big[-1]:g}x in 90 %.")

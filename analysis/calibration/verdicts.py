@@ -296,9 +296,10 @@ def assemble(entries: Mapping[str, dict], runs: Mapping[str, Mapping[str, np.nda
     matched arm's tuned runs fail to track (``where_all_track``: what the ranking says apart
     from the failures; its ``cells`` index the ``main`` cells) and at the defaults
     (:func:`at_defaults`), the paper's arm against the best and against ``raw``, and the
-    plants compared apart (cells ``apart``).  The columns are the cells scenario by scenario,
-    the plants in the same order within each (``fair.cells``), so a column's plant is its
-    index modulo the number of plants."""
+    plants compared apart (cells ``apart``), and the rule on planted truth at the layout and
+    noise of the comparisons the record makes (``analysis.calibration.fair_planted``).  The
+    columns are the cells scenario by scenario, the plants in the same order within each
+    (``fair.cells``), so a column's plant is its index modulo the number of plants."""
     out: dict = {"arms": dict(entries), **compare(runs, matched, main)}
     n_cols = main.size
     plant = np.arange(n_cols) % (n_cols // len(prior.SCENARIOS))
@@ -316,4 +317,9 @@ def assemble(entries: Mapping[str, dict], runs: Mapping[str, Mapping[str, np.nda
         out["apart"] = {"plants": list(apart_plants), **compare(runs, matched, apart),
                         "held_out": {n: summary(runs[n]["tuned"][:, apart]) for n in runs}}
     out["rule"] = RULE
+    from analysis.calibration import fair_planted  # it judges with this module's rule
+
+    comparisons = {f"{n} vs {best}": (n, best) for n in out["ranking"][1:]}
+    comparisons[f"{paper} vs {raw}"] = (paper, raw)
+    out["planted"] = fair_planted.study(runs, comparisons, main, matched)
     return out
