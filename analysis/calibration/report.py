@@ -397,6 +397,17 @@ def _answer_sequential(r: dict) -> list[str]:
     return [" ".join(words)]
 
 
+def _tuning_cost(record: dict) -> str:
+    """The fair tuning's own runs (in the shared tuning cache, not in the stores' counts)."""
+    arms = record["fair_tuning"]["arms"].values()
+    if not all("runs_per_evaluation" in a for a in arms):  # records before it
+        return ""
+    n = sum((a["evaluations"] + 1) * a["runs_per_evaluation"] for a in arms)
+    return (f" The fair tuning's own training runs are not among them: {n:,} (each arm's "
+            "evaluations and one at its defaults), kept in the tuning cache that the regime "
+            "study shares, their time not recorded.")
+
+
 def notes(record: dict) -> str:
     """The study's answers, computed from the record: short sentences, their numbers in tables
     (Markdown; ``analysis.prose``'s rule)."""
@@ -409,7 +420,7 @@ def notes(record: dict) -> str:
                f"{c['runs_in_store']:,} runs in its stores; {c['runs_total']:,} runs were "
                f"run for it in {c['seconds_running_total']:.0f} s of running over every "
                f"invocation ({c['runs_this_time']:,} runs and {c['seconds']:.0f} s wall in "
-               f"the last, on {c['engine']}). The fitted settings: "
+               f"the last, on {c['engine']}).{_tuning_cost(record)} The fitted settings: "
                f"{', '.join(record['best_fit']['scenario_files'])} (a fit, not the "
                "defaults).")  # fmt: skip
     if record["level"] == "quick":

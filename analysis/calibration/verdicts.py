@@ -236,6 +236,7 @@ def arm_entry(a, rec: Mapping, other_table: Mapping, runs: Mapping[str, np.ndarr
             "free": [f["name"] for f in rec["free"]], "fixed": fixed_settings(a),
             "evaluations": rec["evaluations"],
             "evaluations_per_restart": rec["evaluations_per_restart"],
+            "runs_per_evaluation": rec["runs_per_evaluation"],
             "objective": rec["objective"], "objective_at_defaults": rec["objective_at_defaults"],
             "agreement": rec["agreement"], "edges": rec["edges"], "values": rec["values"],
             "other_table": other_table,
