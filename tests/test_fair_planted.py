@@ -65,23 +65,28 @@ def test_false_of_is_the_truth_table():
 def test_layout_recovers_planted_variances_and_sorts_the_failing_cells():
     """The best/best pair's seed effect (each arm's own, sd 0.05: the difference's sd 0.071)
     and a run's noise (sd 0.1 per arm: 0.141) come back within 20 % on 60 seeds x 20 cells;
-    a cell where a fails at every seed is systematic, one where the arms take turns (a at
-    seeds 0-4, b at 5-9) varies, and so does one where only a's runner-up fails at a few."""
+    a cell where a fails at every seed is fixed, one where the arms take turns (a at seeds
+    0-4, b at 5-9) varies, and so does one where only a's runner-up fails at a few; a cell
+    where only one level fails, at every seed, is fixed too."""
     s, c = 60, 20
     fa, fb, fo = (np.zeros((s, c), bool) for _ in range(3))
     fa[:, 0] = True
     fa[:5, 1] = True
     fb[5:10, 1] = True
     fo[:3, 2] = True
+    fb1 = fb.copy()
+    fb[:, 3] = True  # b's best restart fails there at every seed, its runner-up never
     arms = _arms(seeds=s, cells=c, seed_sd=0.05, run_sd=0.1, seed=1,
-                 fails={(0, 0): fa, (0, 1): fa | fo, (1, 0): fb, (1, 1): fb})  # fmt: skip
+                 fails={(0, 0): fa, (0, 1): fa | fo, (1, 0): fb, (1, 1): fb1})
     lay = fp.layout(arms)
     n = lay["noise"]
-    assert n["tracked"] == c - 3 and n["systematic"] == 1 and n["varying"] == 2
-    assert lay["systematic"][0] and lay["varying"][1] and lay["varying"][2]
+    assert n["tracked"] == c - 4 and n["fixed"] == 2 and n["varying"] == 2
+    assert lay["fixed"][0] and lay["fixed"][3] and lay["varying"][1] and lay["varying"][2]
     assert n["seed_sd"] == pytest.approx(0.05 * math.sqrt(2), rel=0.2)
     assert n["pair_sd"] == pytest.approx(0.1 * math.sqrt(2), rel=0.2)
     assert n["random_failures"] == pytest.approx((5 + 5 + 5 + 3 + 5) / (4 * s * c))
+    # the offsets are each level's cell means less its arm's
+    assert np.allclose(lay["offset"].sum(axis=1), 0.0)
     # the residuals are each level's, about its own cell means
     assert np.allclose(lay["resid"][..., lay["tracked"]].mean(axis=2), 0.0)
     assert fp.layout(_arms(seeds=2)) is None  # 2 seeds: no variance to resample
@@ -90,17 +95,17 @@ def test_layout_recovers_planted_variances_and_sorts_the_failing_cells():
 def test_draws_plant_the_shift_keep_below_the_threshold_and_exchange_failures():
     """Over many draws: the best/best mean log ratio on the tracked cells averages the planted
     log 1.2 (a bootstrap's mean is unbiased); no tracked run comes near the tracking threshold;
-    the varying cells' failures are shared equally by the arms (exchanged per seed, 30 of
-    arm a's runs failing there, none of b's); the systematic cell fails everywhere; a planted
-    extra failure lands on the first arm only."""
+    the varying cell's failures (arm a's, at 3 seeds) are shared equally by the four levels,
+    each seed's on a level of its own drawing (permuted per seed, not per draw); the fixed
+    cell fails everywhere; a planted extra failure lands on the first arm only."""
     s, c = 10, 6
     fa = np.zeros((s, c), bool)
     fa[:, 0] = True
     fa[:3, 1] = True
-    arms = _arms(seeds=s, cells=c, fails={(0, 0): fa, (0, 1): fa})
+    arms = _arms(seeds=s, cells=c, fails={(0, 0): fa})  # a's best restart only
     lay = fp.layout(arms)
     rng = np.random.default_rng(2)
-    means, fails_a, fails_b = [], 0, 0
+    means, fails_a, fails_b, spread = [], 0, 0, []
     for _ in range(400):
         a, b = fp.draw(lay, np.array([math.log(1.2), 0.0]), 0.0, rng)
         t = lay["tracked"]
@@ -111,8 +116,12 @@ def test_draws_plant_the_shift_keep_below_the_threshold_and_exchange_failures():
             assert np.all(arr[:, 0, -1] == 1)  # the systematic cell
         fails_a += sum(int(x[:, 1, -1].sum()) for x in a.values())
         fails_b += sum(int(x[:, 1, -1].sum()) for x in b.values())
+        per_level = [int(x[:, 1, -1].sum()) for x in (*a.values(), *b.values())]
+        if sum(per_level) >= 3:  # at least three failing seeds drawn (one level each)
+            spread.append(sum(k > 0 for k in per_level) > 1)
     assert np.mean(means) == pytest.approx(math.log(1.2), abs=0.01)
-    assert abs(fails_a - fails_b) < 0.15 * (fails_a + fails_b)  # 6 of 20 expected per draw
+    assert abs(fails_a - fails_b) < 0.15 * (fails_a + fails_b)
+    assert np.mean(spread) > 0.8  # one level for all of a draw's seeds: 1/16 at 3 seeds
     a, b = fp.draw(lay, np.zeros(2), 0.5, np.random.default_rng(3))
     tracked_a = sum(int(x[:, lay["tracked"], -1].sum()) for x in a.values())
     tracked_b = sum(int(x[:, lay["tracked"], -1].sum()) for x in b.values())
@@ -189,7 +198,6 @@ def test_study_checks_and_a_tampered_record_does_not():
     pl = fp.study(runs, {"y@raw vs x@raw": ("y@raw", "x@raw"),
                          "z@raw vs x@raw": ("z@raw", "x@raw")}, np.ones(5, bool), names,
                   replicates=10)  # fmt: skip
-    fp.check(pl)
     text = fair_report.planted({"planted": pl, "ranking": names})[0]
     assert f"accepts the truth in at least {100 * pl['least_accepts']['share']:.0f} %" in text
 
@@ -197,22 +205,31 @@ def test_study_checks_and_a_tampered_record_does_not():
         bad = copy.deepcopy(pl)
         edit(bad)
         with pytest.raises(AssertionError):
-            fp.check(bad)
+            fp.check(bad, labels)
 
+    labels = ["y@raw vs x@raw", "z@raw vs x@raw"]
+    fp.check(pl, labels)
     first = ("comparisons", "y@raw vs x@raw", "truths")
-    broken(lambda b: b["least_power"].update({"1.1": b["least_power"]["1.1"] + 0.05}))
+    broken(lambda b: b["truths"]["least_power"].update(
+        {"1.1": b["truths"]["least_power"]["1.1"] + 0.05}))  # fmt: skip
     broken(lambda b: b["least_accepts"].update(k=b["least_accepts"]["k"] - 1))
-    broken(lambda b: b["least_coverage"].update({"1": 0.5}))
+    broken(lambda b: b["as_run"]["least_coverage"].update({"1": 0.5}))
+    broken(lambda b: b["best"]["by_rho"][1]["right"].update(k=0, share=0.0))
+    broken(lambda b: b["comparisons"].pop("z@raw vs x@raw"))
     broken(lambda b: b[first[0]][first[1]][first[2]].pop())
     broken(lambda b: b[first[0]][first[1]][first[2]][0]["verdicts"].update(
         {"equivalent": 0.0, "higher": 1.0}))  # fmt: skip
-    broken(lambda b: b[first[0]][first[1]][first[2]][3]["power"].update(k=0, share=0.0))
+    i = fp.RATIOS.index(1.5)  # a row whose power and shares say otherwise, counts consistent
+    broken(lambda b: b[first[0]][first[1]][first[2]][i]["power"].update(
+        k=(k := 1 - b[first[0]][first[1]][first[2]][i]["power"]["k"] // 10), share=k / 10))
 
     def rejects(b):
         row = b[first[0]][first[1]][first[2]][0]
         row["verdicts"] = {"higher": 0.5, "equivalent": 0.5}
         row["accepts"].update(k=5, share=0.5, ci_low=0.2, ci_high=0.8)
         row["power"].update(k=5, share=0.5, ci_low=0.2, ci_high=0.8)
+        row["definite"].update(k=10, share=1.0, ci_low=0.7, ci_high=1.0)
+        row["false_among_definite"].update(k=5, n=10, share=0.5, ci_low=0.2, ci_high=0.8)
         b.update(fp.summarise(b))
 
     bad = copy.deepcopy(pl)

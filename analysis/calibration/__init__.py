@@ -485,7 +485,10 @@ def _check_fair(fair: dict) -> None:
     from analysis.calibration import fair_planted, verdicts
 
     if "planted" in fair:  # records before it have none
-        fair_planted.check(fair["planted"])
+        pa = fair["paper_arm"]
+        fair_planted.check(fair["planted"], [*(f"{n} vs {fair['best']}"
+                                               for n in fair["ranking"][1:]),
+                                             f"{pa['arm']} vs {pa['arm'].split('@')[0]}@raw"])
     b = fair["budget"]
     for name, t in fair["arms"].items():
         want = b["per_setting"] * len(t["free"])
