@@ -59,7 +59,7 @@ from analysis.regimes import stats as rstats
 
 __all__ = ["RATIOS", "FAIL_EXTRA", "RUN_RATIOS", "BEST_RATIOS", "MODES", "false_of", "layout",
            "pairing_truths", "draw", "planted_pair", "best_claims", "study", "summarise",
-           "check", "REPLICATES", "ACCEPT", "DEFINITE"]  # fmt: skip
+           "check", "label", "REPLICATES", "ACCEPT", "DEFINITE"]  # fmt: skip
 
 #: Planted RMSE ratios of arm a to arm b (1.02 and 0.97: inside the ±5 % margin).
 RATIOS = (1.0, 1.02, 0.97, 1.05, 0.95, 1.10, 0.90, 1.20, 0.80, 1.50, 0.67)
@@ -196,6 +196,11 @@ def draw(lay: Mapping, log_shift: np.ndarray, f: float, rng: np.random.Generator
     return out
 
 
+def label(a: str, b: str) -> str:
+    """A planted comparison's name in the record: arm ``a`` against arm ``b``."""
+    return f"{a} vs {b}"
+
+
 def _share(k: int, n: int) -> dict:
     if n == 0:
         return {"k": 0, "n": 0, "share": None, "ci_low": None, "ci_high": None}
@@ -312,8 +317,8 @@ def _key(r: float, f: float) -> str:
 def summarise(pl: Mapping) -> dict:
     """The summary of the planted comparisons: the least acceptance over both modes (and
     where), whether every truth is accepted at :data:`ACCEPT`, and per mode and planted truth
-    the least power, the least best/best coverage and the most false definite verdicts over
-    the comparisons (empty without a planted comparison)."""
+    the least power and the least best/best coverage over the comparisons (empty without a
+    planted comparison)."""
     done = {k: c for k, c in pl["comparisons"].items() if c["noise"] is not None}
     if not done:
         return {}
@@ -332,10 +337,7 @@ def summarise(pl: Mapping) -> dict:
                                                for c in done.values())
                                for i, (r, f) in enumerate(conds)
                                if f == 0 and all(c[mode][i]["coverage"]["n"]
-                                                 for c in done.values())},
-            "most_definite_false": max((c[mode][i]["false_among_definite"]["share"] or 0.0)
-                                       for c in done.values()
-                                       for i in range(len(conds)))}  # fmt: skip
+                                                 for c in done.values())}}  # fmt: skip
     return out
 
 
