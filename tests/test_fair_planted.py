@@ -236,3 +236,38 @@ def test_study_checks_and_a_tampered_record_does_not():
     rejects(bad)
     with pytest.raises(AssertionError, match="rejects planted truth"):
         fp.check(bad)
+
+
+def test_restarts_as_run_keep_every_pairings_truth_in_the_cells_whose_failures_vary():
+    """With no run noise, each level a fixed cell-by-cell offset and a cell where arm a's best
+    restart fails at a few seeds: in every as-run draw, each pairing's mean log ratio over
+    the cells its two levels share is exactly its truth (planted ratio plus the tracked
+    cells' mean offset difference), whether or not the varying cell is among them (an offset
+    of zero there, as before, pulls it toward the planted ratio alone)."""
+    s, c = 8, 6
+    rng = np.random.default_rng(11)
+    fa = np.zeros((s, c), bool)
+    fa[:2, 1] = True
+    arms = []
+    for i in range(2):
+        lv = {}
+        for j, name in enumerate(verdicts.RESTARTS):
+            cells = np.log(0.02) + rng.normal(0, 0.3, c)
+            fails = fa if (i, j) == (0, 0) else None
+            lv[name] = _held(np.exp(np.tile(cells, (s, 1))), fails)
+        arms.append(lv)
+    lay = fp.layout(arms)
+    assert lay["varying"][1] and lay["noise"]["varying"] == 1
+    rho = 1.3
+    truths = fp.pairing_truths(lay, math.log(rho), True)
+    assert len(set(np.round(truths, 9))) == len(truths)  # the restarts' offsets differ
+    with_varying = 0
+    draws = np.random.default_rng(12)
+    for _ in range(60):
+        a, b = fp.draw(lay, np.array([math.log(rho), 0.0]), 0.0, draws, as_run=True)
+        v = verdicts.across(a, b)
+        for (la, lb), t in zip(verdicts.PAIRINGS, truths, strict=True):
+            p = v["tuned"] if (la, lb) == verdicts.PAIRINGS[0] else v["by"][f"{la} / {lb}"]
+            assert p["mean_log_ratio"] == pytest.approx(t, abs=1e-9), (la, lb)
+            with_varying += p["common_cells"] == int(lay["tracked"].sum()) + 1
+    assert with_varying > 0  # the varying cell was shared in some draws

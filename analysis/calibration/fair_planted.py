@@ -16,9 +16,10 @@ difference be before it names it?
 - **Two modes**.  *Same restarts* (``truths``): the levels' own cell means are removed, so
   every pairing has the planted truth; this isolates the law's noise.  *Restarts as run*
   (``as_run``): each level keeps its offset from its arm's mean over the two restarts (cell
-  by cell), so a pairing's truth is the planted log ratio plus the mean over the tracked
-  cells of the two levels' offsets (:func:`pairing_truths`); the restarts' real differences
-  are then part of the truth.
+  by cell; in a cell where failures vary, its mean offset over the tracked cells), so a
+  pairing's truth is the planted log ratio plus the mean over the tracked cells of the two
+  levels' offsets (:func:`pairing_truths`), whichever varying cells a draw's pairing has in
+  common; the restarts' real differences are then part of the truth.
 - **Failures**: a cell where every level fails at every seed or at none is a fixed
   difference, not noise: in the synthetic data every level fails there.  In the cells where
   some level's failures vary over the seeds, each resampled seed's failure rows are permuted
@@ -111,8 +112,9 @@ def layout(arms: Sequence[Mapping[str, np.ndarray]]) -> dict | None:
     """The real runs of ``arms`` (each: restart level -> held-out result (seeds, cells,
     metrics), restricted to the compared cells) as the planted comparisons' material (see the
     module): ``resid`` (arms, levels, seeds, cells) log RMSE residuals about each level's
-    cell means and ``offset`` (arms, levels, cells) those means less their arm's (zero off
-    ``tracked``), ``fails`` the failure masks; the cells ``tracked`` (no level fails at any
+    cell means and ``offset`` (arms, levels, cells) those means less their arm's (in a
+    ``varying`` cell the level's mean over ``tracked``; zero in a ``fixed`` one), ``fails``
+    the failure masks; the cells ``tracked`` (no level fails at any
     seed), ``fixed`` (every level fails at every seed or at none) and ``varying`` (the rest);
     and a description of the noise: the first two arms' best/best ``seed_sd`` and ``pair_sd``
     (the regime study's method of moments), ``random_failures`` (the share of all the levels'
@@ -133,6 +135,9 @@ def layout(arms: Sequence[Mapping[str, np.ndarray]]) -> dict | None:
     varying = ~tracked & ~fixed
     mu = logr.mean(axis=2)
     offset = mu - mu.mean(axis=1, keepdims=True)
+    # a varying cell's tracked runs enter a pairing's common cells with a donor's residuals:
+    # each level's mean offset there keeps every pairing's truth that of the tracked cells
+    offset[..., varying] = offset[..., tracked].mean(axis=-1, keepdims=True)
     resid = logr - mu[:, :, None, :]
     d = resid[0, 0][:, tracked] - resid[1, 0][:, tracked]
     frame = pd.DataFrame({"mechanism": "pair", "pose": "raw",
