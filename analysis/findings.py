@@ -197,18 +197,20 @@ def regimes(reg: dict) -> Finding:
 def _tuned_sentence(reg: dict) -> str:
     """How many tuned verdicts off the MuJoCo robot hold at every pairing of the two arms'
     tuning restarts (and, for the best arms, their choice)."""
-    from analysis.regimes.report import bsc_standing, inert, standing_count
+    from analysis.regimes.report import bsc_standing, costs, inert, standing_count
 
     kept, n = standing_count(reg)
-    bsc = bsc_standing(reg, ("pays", "pays (divergence)"))
-    off = " and ".join(f"{len(ms)} of {k} ({controllers.label(a)}, {p})"
-                       for p, (a, ms, k) in inert(reg).items())  # fmt: skip
-    return (f"Tuned, {kept} of {n} simulated-plant verdicts survive the restart and best-arm "
-            "checks"
-            + (f"; Adaptive BSC against BSC (its law without adaptation, each tuned) {bsc}."
-               if bsc else ".")
-            + (f" The best adaptive arms' tuned adaptation is inert (frozen, within 5 %) on "
-               f"{off} plants." if off else ""))
+    bsc = bsc_standing(reg)
+    by: dict[tuple, list[str]] = {}  # (arm, inert, costs, plants) -> pose sources
+    for p, (a, ms, k) in inert(reg).items():
+        by.setdefault((a, len(ms), len(costs(reg, a, p)), k), []).append(p)
+    off = "; ".join(f"{controllers.label(a)}'s adaptation is inert on {i} and costs on {c} of "
+                    f"{k} plants " + ("per pose source" if len(ps) == len(reg["poses"]) else
+                                      f"({', '.join(ps)})") for (a, i, c, k), ps in by.items())
+    return (f"Tuned, {kept} of {n} distinct simulated-plant verdicts survive the restart, "
+            "best-arm and adaptation-off checks"
+            + (f"; Adaptive BSC against BSC {bsc}." if bsc else ".")
+            + (f" Switched off at its tuned settings, {off}." if off else ""))
 
 
 def calibration(cal: dict) -> Finding:

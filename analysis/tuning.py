@@ -169,11 +169,25 @@ _SGD = (Free("mu x", "mu", multiplier=True, low=1e-2, high=1e2, log=True),
 _BSC = (Free("k1", "gains", 0, low=0.25, high=25.0, log=True),
         Free("k2", "gains", 1, low=1.0, high=1000.0, log=True),
         Free("k3", "gains", 2, low=0.5, high=100.0, log=True))  # fmt: skip
-_DANN = (Free("p0", "p0", low=1.0, high=1e4, log=True),
-         Free("q", "q", low=1e-7, high=1e-3, log=True),
-         Free("r", "r", low=10.0, high=1e4, log=True))  # fmt: skip
-_ABSC = tuple(Free(f"P0[{i}]", "adaptation", i, low=d / 100, high=d * 1000, log=True)
-              for i, d in enumerate((2.0, 0.02, 2.0, 2.0)))  # fmt: skip
+# The weight filter of the two network laws (DA-NN and IAPID-NN-DEKF share its form and
+# defaults, eq. 63: P0 = p0 I, Q = q I, R = r I): the same boxes for both (issue 23's third
+# audit, major 2: IAPID-NN-DEKF's were fixed while DA-NN's were tuned).
+_WEIGHT_EKF = (Free("p0", "p0", low=1.0, high=1e4, log=True),
+               Free("q", "q", low=1e-7, high=1e-3, log=True),
+               Free("r", "r", low=10.0, high=1e4, log=True))  # fmt: skip
+_DANN = _WEIGHT_EKF
+# Adaptive BSC's adaptation, on a log scale: the initial gains diag P(0) from a hundredth to a
+# thousand times their defaults (as widened before); the prediction-error weights (kappa_v,
+# kappa_w) from a hundredth to ten times theirs (100); the memory of the pose increments from a
+# tenth to ten times its 2 s; the forgetting rate from a hundredth to ten times its 0.5 (its
+# floor 0, no forgetting, is outside a log box: 0.005 is a memory of 200 s, longer than every
+# run).
+_ABSC = (tuple(Free(f"P0[{i}]", "adaptation", i, low=d / 100, high=d * 1000, log=True)
+               for i, d in enumerate((2.0, 0.02, 2.0, 2.0)))
+         + (Free("kappa_v", "identification", 0, low=1.0, high=1000.0, log=True),
+            Free("kappa_w", "identification", 1, low=1.0, high=1000.0, log=True),
+            Free("memory", "memory", low=0.2, high=20.0, log=True),
+            Free("forgetting", "forgetting", low=0.005, high=5.0, log=True)))  # fmt: skip
 
 # NMPC's four stage weights (q_p, q_th, r_v, r_w), each from a hundredth to a hundred times its
 # default; the horizon (2 s), the terminal weight and the solver (RTI) stay the controller's.
@@ -185,7 +199,7 @@ _NMPC = tuple(Free(n, "weights", i, low=d / 100, high=d * 100, log=True)
 FREE: dict[str, tuple[Free, ...]] = {
     "pid": _PID,
     "adaptive-pid": _PID + _SGD,
-    "iapid-nn-dekf": _PID + _SGD,
+    "iapid-nn-dekf": _PID + _SGD + _WEIGHT_EKF,
     "iapid-oracle": _PID + _SGD,
     "backstepping": _BSC,
     "adaptive-nn": _BSC + _DANN,

@@ -565,6 +565,18 @@ def test_fair_restart_dependent_when_the_runner_up_reverses_the_order():
     assert v["verdict"] == "lower" and v["tuned"]["ratio"] == pytest.approx(0.8, rel=1e-12)
 
 
+def test_the_swap_trades_only_the_shared_settings():
+    """IAPID-NN-DEKF given APID's best table keeps its own weight filter; APID given
+    IAPID-NN-DEKF's takes its gains and rates and no weight filter (a setting it has not)."""
+    from analysis.calibration.fair import swap_table
+
+    iapid = {"gains": [1.0] * 6, "mu": [0.1] * 3, "p0": 50.0, "q": 1e-6, "r": 99.0}
+    apid = {"gains": [2.0] * 6, "mu": [0.3] * 3}
+    assert swap_table(iapid, apid) == {"gains": [2.0] * 6, "mu": [0.3] * 3, "p0": 50.0,
+                                       "q": 1e-6, "r": 99.0}  # fmt: skip
+    assert swap_table(apid, iapid) == {"gains": [1.0] * 6, "mu": [0.1] * 3}
+
+
 def test_fair_arms_differ_only_in_the_law():
     """DESIGN §7.1: the matched arms' held-out runs share pose source, plant, noise, limits,
     reference and seeds cell by cell; the paper's arm differs in its pose source only."""

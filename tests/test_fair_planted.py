@@ -187,6 +187,22 @@ def test_best_claims_never_name_a_best_among_equals_and_find_a_planted_one():
     assert bet["right"]["share"] >= 0.9 and bet["wrong"]["k"] == 0
 
 
+def test_best_claims_find_the_arm_that_fails_less_and_no_other():
+    """Every other arm failing in an extra 40 % of its runs (at equal accuracy): the seed
+    sign-flip test tells each apart at 10 seeds x 6 cells, so the arm that fails less is
+    claimed in most replicates and another never; at 0 % none is claimed; the extra failures
+    land on the other arms only."""
+    lay = fp.layout(_arms(n_arms=3, seed=18))
+    names = ["a", "b", "c"]
+    more = fp.best_claims(lay, names, 1.0, 40, np.random.default_rng(19), f=0.4)
+    assert more["right"]["share"] >= 0.8 and more["wrong"]["k"] == 0, more
+    none = fp.best_claims(lay, names, 1.0, 40, np.random.default_rng(19), f=0.0)
+    assert none["claims"]["k"] <= 2 and none["right"]["k"] == 0
+    a, b, c = fp.draw(lay, np.zeros(3), [0.0, 0.4, 0.4], np.random.default_rng(20))
+    assert not any(x[..., -1].any() for x in a.values())
+    assert all(x[..., -1].any() for x in (*b.values(), *c.values()))
+
+
 def test_study_checks_and_a_tampered_record_does_not():
     """The record's planted part on synthetic arms: ``check`` passes; a changed summary, a
     verdict share that does not give the acceptance, a missing truth or a rule that rejects
@@ -200,6 +216,8 @@ def test_study_checks_and_a_tampered_record_does_not():
                   replicates=10)  # fmt: skip
     text = fair_report.planted({"planted": pl, "ranking": names})[0]
     assert f"accepts the truth in at least {100 * pl['least_accepts']['share']:.0f} %" in text
+    right = "/".join(str(b["right"]["k"]) for b in pl["best"]["by_fail"])
+    assert f"claims the arm that fails less in {right} of 10" in text
 
     def broken(edit) -> None:
         bad = copy.deepcopy(pl)
@@ -215,6 +233,9 @@ def test_study_checks_and_a_tampered_record_does_not():
     broken(lambda b: b["least_accepts"].update(k=b["least_accepts"]["k"] - 1))
     broken(lambda b: b["as_run"]["least_coverage"].update({"1": 0.5}))
     broken(lambda b: b["best"]["by_rho"][1]["right"].update(k=0, share=0.0))
+    broken(lambda b: b["best"]["by_fail"].pop())
+    broken(lambda b: b["best"]["by_fail"][0]["wrong"].update(
+        k=b["best"]["by_fail"][0]["wrong"]["k"] + 1))  # fmt: skip
     broken(lambda b: b["comparisons"].pop("z@raw vs x@raw"))
     broken(lambda b: b[first[0]][first[1]][first[2]].pop())
     broken(lambda b: b[first[0]][first[1]][first[2]][0]["verdicts"].update(
@@ -271,3 +292,23 @@ def test_restarts_as_run_keep_every_pairings_truth_in_the_cells_whose_failures_v
             assert p["mean_log_ratio"] == pytest.approx(t, abs=1e-9), (la, lb)
             with_varying += p["common_cells"] == int(lay["tracked"].sum()) + 1
     assert with_varying > 0  # the varying cell was shared in some draws
+
+
+def test_a_varying_cells_tracked_runs_take_a_tracked_cells_residuals():
+    """A cell where one level fails at a few seeds has no cell mean of its own to resample
+    about: its tracked runs take the residuals of a tracked cell drawn at random, so they vary
+    over the seeds as the tracked cells' runs do (not a constant)."""
+    s, c = 10, 6
+    fa = np.zeros((s, c), bool)
+    fa[:2, 1] = True
+    lay = fp.layout(_arms(seeds=s, cells=c, run_sd=0.1, fails={(0, 0): fa}))
+    assert lay["varying"][1]
+    rng = np.random.default_rng(21)
+    spread = []
+    for _ in range(50):
+        a, _ = fp.draw(lay, np.zeros(2), 0.0, rng)
+        x = a["tuned-other"]  # a level that tracks the varying cell at every seed unless moved
+        ok = x[:, 1, -1] == 0
+        if ok.sum() > 2:
+            spread.append(np.std(np.log(x[ok, 1, TAIL])))
+    assert spread and np.median(spread) > 0.02, spread

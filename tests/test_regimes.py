@@ -337,6 +337,12 @@ def test_the_committed_record_passes_its_check_and_is_in_the_report():
     regimes.check(record)
     assert regimes.render(record).rstrip() in (PAPER / "report.md").read_text()
     assert record["level"] in regimes.LEVELS and record["level"] in regimes.render(record)
+    assert report.verdicts(record) == record["verdict"]  # the record's verdicts are the rule's
+    # a rule that rejects the planted truth at the tuned layout fails the check (DESIGN §7.6)
+    row = record["coverage_tuned"]["contrasts"][report.BSC]["intervals"]["t(G-1)"]["1"]
+    row["accepts"] = 0.85
+    with pytest.raises(AssertionError):
+        regimes.check(record)
 
 
 @committed
@@ -630,6 +636,61 @@ def test_an_inert_best_adaptive_arm_withholds_its_contrast_and_a_frozen_mismatch
     bad["arms_run"]["tuned-frozen"]["raw"][arm]["settings"]["gains"][0] += 1.0
     with pytest.raises(AssertionError):
         regimes.check(bad)
+
+
+def _plant(level: dict, mech: str, pose: str, ratio: float, div_p: float = 1.0) -> None:
+    """Set one cell of a contrast level (or a frozen arm's entry) to a planted ratio."""
+    level[pose][mech]["divergence"]["p"] = div_p
+    level["model"]["cells"][mech][pose].update(n=40, ratio=ratio,
+                                               ratio_ci=[0.9 * ratio, 1.1 * ratio])
+
+
+def test_an_adaptive_law_against_its_fixed_one_is_withheld_where_its_adaptation_points_away(
+        quick):  # fmt: skip
+    """APID - PID (by its own name) says 'pays' on ideal/raw while APID switched off at its
+    tuned settings does better than adapting (frozen: 'costs'): withheld, the tuned gains
+    deciding it; 'costs' where frozen APID pays: withheld too; frozen pointing the same way:
+    not withheld for that reason. The same for the best arms' contrast. The distinct count
+    leaves out the best arms' contrast on a pose source where another contrast has its two
+    arms."""
+    record, _ = quick
+    rec = json.loads(json.dumps(record))
+    ad = rec["adaptation"]["arms"]["adaptive-pid"]
+    name = "adaptive-pid - pid"
+    c = rec["contrasts"][name]
+    levels = [c["tuned"], *c.get("restarts", {}).values()]
+
+    def said(n: str = name) -> dict:
+        return report.verdicts(rec)["mechanisms"]["ideal"][n]["poses"]["raw"]
+
+    for tuned, frozen, why in ((0.5, 1.5, "not shown to pay"), (1.5, 0.5, "not shown to cost"),
+                               (0.5, 0.5, None), (1.5, 1.5, None)):  # fmt: skip
+        for level in levels:
+            _plant(level, "ideal", "raw", tuned)
+        _plant(ad, "ideal", "raw", frozen)
+        v = said()
+        if why:
+            assert v["verdict"] == "withheld" and why in v["withheld"], (tuned, frozen, v)
+        else:
+            assert "not shown" not in (v["withheld"] or ""), v
+    # the best arms' contrast, with APID as the best adaptive arm on raw
+    rec["best"]["raw"].update({"best-adaptive": "adaptive-pid", "best-fixed": "pid"})
+    for level in [rec["contrasts"][report.KEY]["tuned"],
+                  *rec["contrasts"][report.KEY].get("restarts", {}).values()]:
+        _plant(level, "ideal", "raw", 0.5)
+    _plant(ad, "ideal", "raw", 1.5)
+    assert "not shown to pay" in (said(report.KEY)["withheld"] or "")
+    # the distinct count: a contrast named for two arms no other contrast has
+    a, b = "iapid-nn-dekf", "pid"
+    assert f"{a} - {b}" not in rec["contrasts"]
+    for p in rec["poses"]:
+        rec["best"][p].update({"best-adaptive": a, "best-fixed": b})
+    rec["verdict"] = report.verdicts(rec)
+    _, n = report.standing_count(rec)
+    rec["contrasts"][f"{a} - {b}"] = json.loads(json.dumps(rec["contrasts"][report.KEY]))
+    rec["verdict"] = report.verdicts(rec)
+    _, n2 = report.standing_count(rec)
+    assert n2 == n, (n, n2)  # the new name's cells counted, the best arms' contrast's not
 
 
 def test_the_rate_ratio_interval_is_clustered_by_seed():

@@ -484,12 +484,11 @@ def _check_fair(fair: dict) -> None:
     from analysis.calibration import fair as fairmod
     from analysis.calibration import fair_planted, verdicts
 
-    if "planted" in fair:  # records before it have none
-        paper = fair["paper_arm"]["arm"]
-        raw = f"{paper.split('@')[0]}@{fairmod.POSE}"  # the paper's law on the measured pose
-        fair_planted.check(fair["planted"], [fair_planted.label(a, b) for a, b in
-                                             [*((n, fair["best"]) for n in fair["ranking"][1:]),
-                                              (paper, raw)]])
+    paper = fair["paper_arm"]["arm"]
+    raw = f"{paper.split('@')[0]}@{fairmod.POSE}"  # the paper's law on the measured pose
+    fair_planted.check(fair["planted"], [fair_planted.label(a, b) for a, b in
+                                         [*((n, fair["best"]) for n in fair["ranking"][1:]),
+                                          (paper, raw)]])
     b = fair["budget"]
     for name, t in fair["arms"].items():
         want = b["per_setting"] * len(t["free"])

@@ -7,7 +7,8 @@ runs (it is in the study store's digest); their comparison is ``analysis.calibra
   they differ only in the law (DESIGN §7.1); the paper's own asymmetry, IAPID-NN-DEKF on its
   filtered pose, is a separate, labelled arm (:data:`PAPER_ARM`).
 - **Tuning**: ``analysis.tuning.tune_arm``, each arm's free settings of ``tuning.FREE`` (the
-  adaptation's own rates, time scales and covariances included) with ``per_setting``
+  adaptation's own rates, time scales and covariances included: the SGD's rates, both network
+  laws' weight filter, Adaptive BSC's gains, weights, memory and forgetting) with ``per_setting``
   evaluations per free setting per restart, two CMA-ES restarts; on the regime study's
   training pairs (``analysis.regimes.design.TRAINING``: other trajectories on other plants).
   At the medium and full levels the budget and the training are the regime study's full
@@ -26,8 +27,9 @@ runs (it is in the study store's digest); their comparison is ``analysis.calibra
   MuJoCo robot (:data:`APART`, where a level holds it) is held out too but compared apart: the
   regime study found its 2 ms physics not converged, so its cells never enter the simulated
   plants' verdicts.
-- **Settings swap** (:data:`SWAP`): the two laws that share their free settings (IAPID-NN-DEKF
-  and APID: the PID's gains and the SGD's rates) are also run with each other's best table,
+- **Settings swap** (:data:`SWAP`): the two laws that share free settings (IAPID-NN-DEKF
+  and APID: the PID's gains and the SGD's rates) are also run with each other's best values
+  of them (:func:`swap_table`; IAPID-NN-DEKF keeps its own weight filter, which APID has not),
   so that the law is compared at common settings apart from what each one's tuning found.
 """
 
@@ -45,8 +47,8 @@ from analysis.calibration.store import Task, task_key
 from analysis.regimes import design
 from analysis.regimes import stats as rstats
 
-__all__ = ["Budget", "ARMS", "POSE", "PAPER_ARM", "PLANTS", "APART", "LEVELS", "SWAP", "arms",
-           "cells", "held_out_task", "fair_tuning"]  # fmt: skip
+__all__ = ["Budget", "ARMS", "POSE", "PAPER_ARM", "PLANTS", "APART", "LEVELS", "SWAP",
+           "swap_table", "arms", "cells", "held_out_task", "fair_tuning"]  # fmt: skip
 
 #: The compared controllers (all on :data:`POSE`).
 ARMS = ("iapid-nn-dekf", "adaptive-pid", "backstepping", "adaptive-nn", "adaptive-bsc", "nmpc")
@@ -113,6 +115,13 @@ def held_out_task(a: tuning.Arm, table: Mapping | None, budget: Budget) -> Task:
     return Task(key, cases, tuple(budget.test_seeds))
 
 
+def swap_table(own: Mapping, other: Mapping) -> dict:
+    """A law's best table with the settings it shares with another law's best table taken from
+    that one (the swap: the PID's gains and the SGD's rates); the settings only it has (IAPID-
+    NN-DEKF's weight filter) stay its own."""
+    return {**own, **{k: v for k, v in other.items() if k in own}}
+
+
 def fair_tuning(ev, budget: Budget, cache: Path | None) -> dict:
     """Tune every arm of :func:`arms` (``tuning.tune_arm`` on ``ev``'s engine, records kept in
     ``cache``), run them held out at both restarts and at their defaults, compare; the
@@ -131,8 +140,10 @@ def fair_tuning(ev, budget: Budget, cache: Path | None) -> dict:
         entries[a.name] = verdicts.arm_entry(a, rec, tables[1], runs[a.name], main)
         best_tables[a.name], by_name[a.name] = rec["table"], a
     x, y = (f"{c}@{POSE}" for c in SWAP)
-    swapped = ev.evaluate([held_out_task(by_name[x], best_tables[y], budget),
-                           held_out_task(by_name[y], best_tables[x], budget)], "settings swap")
+    swapped = ev.evaluate([held_out_task(by_name[x], swap_table(best_tables[x], best_tables[y]),
+                                         budget),
+                           held_out_task(by_name[y], swap_table(best_tables[y], best_tables[x]),
+                                         budget)], "settings swap")  # fmt: skip
     out = verdicts.assemble(entries, runs, [f"{c}@{POSE}" for c in ARMS],
                             f"{PAPER_ARM[0]}@{PAPER_ARM[1]}", f"{PAPER_ARM[0]}@{POSE}", main,
                             _columns(budget, apart=True),

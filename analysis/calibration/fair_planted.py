@@ -44,7 +44,8 @@ difference be before it names it?
 - **The best arm** (:func:`best_claims`): every matched arm's two levels from the same real
   runs (same restarts; failures permuted among all the levels); with all arms equal, the
   share of replicates where a best is claimed (each claim false), and with one arm planted
-  better (ratio ``rho`` to the others) the share claiming that arm and claiming another.
+  better (ratio ``rho`` to the others, or every other arm failing at an extra probability
+  ``f``) the share claiming that arm and claiming another.
 """
 
 from __future__ import annotations
@@ -165,11 +166,12 @@ def pairing_truths(lay: Mapping, log_rho: float, as_run: bool) -> list[float]:
             for la, lb in verdicts.PAIRINGS]  # fmt: skip
 
 
-def draw(lay: Mapping, log_shift: np.ndarray, f: float, rng: np.random.Generator,
-         as_run: bool = False) -> list:  # fmt: skip
+def draw(lay: Mapping, log_shift: np.ndarray, f: float | Sequence[float],
+         rng: np.random.Generator, as_run: bool = False) -> list:  # fmt: skip
     """One synthetic set of the layout's arms (see the module): per arm a dict level -> held-out
     result, arm ``i``'s log RMSE shifted by ``log_shift[i]``, the levels' offsets kept
-    (``as_run``) or not, the first arm's runs failing at an extra probability ``f``."""
+    (``as_run``) or not, the first arm's runs failing at an extra probability ``f`` (or arm
+    ``i``'s at ``f[i]``) in the cells that can track."""
     resid, fails, varying = lay["resid"], lay["fails"], lay["varying"]
     n_arms, n_lv, s, c = fails.shape
     idx = rng.integers(0, s, s)
@@ -182,8 +184,13 @@ def draw(lay: Mapping, log_shift: np.ndarray, f: float, rng: np.random.Generator
         donors = rng.choice(np.flatnonzero(lay["tracked"]), int(varying.sum()))
         r[..., varying] = r[..., donors]
     fl[..., lay["fixed"]] = True
-    if f > 0:
-        fl[0] |= (rng.random(fl[0].shape) < f) & ~lay["fixed"]
+    if np.isscalar(f):
+        if f > 0:
+            fl[0] |= (rng.random(fl[0].shape) < f) & ~lay["fixed"]
+    else:
+        for i, fi in enumerate(f):
+            if fi > 0:
+                fl[i] |= (rng.random(fl[i].shape) < fi) & ~lay["fixed"]
     shift = np.asarray(log_shift, float)[:, None, None, None]
     off = lay["offset"][:, :, None, :] if as_run else 0.0
     top = (float(np.max(np.abs(resid))) + float(np.max(np.abs(log_shift)))
@@ -252,22 +259,25 @@ def planted_pair(lay: Mapping, rho: float, f: float, replicates: int,
 
 
 def best_claims(lay: Mapping, names: list[str], rho: float, replicates: int,
-                rng: np.random.Generator) -> dict:  # fmt: skip
+                rng: np.random.Generator, f: float = 0.0) -> dict:  # fmt: skip
     """The best-arm claim (``verdicts.compare``) on ``replicates`` synthetic sets of the arms
-    ``names`` (their :func:`layout`, in that order; same restarts), the first planted at ratio
-    ``rho`` to the others (1: all equal): the share of replicates claiming a best
-    (``claims``), claiming the planted one (``right``; only below 1) and claiming another
-    (``wrong``)."""
+    ``names`` (their :func:`layout`, in that order; same restarts), the first planted better:
+    at ratio ``rho`` to the others, or failing less (every other arm's runs fail at an extra
+    probability ``f`` in the cells that can track); all equal at ``rho = 1, f = 0``.  The
+    share of replicates claiming a best (``claims``), claiming the planted one (``right``;
+    only where one is planted) and claiming another (``wrong``)."""
     claims = right = 0
     shift = np.zeros(len(names))
     shift[0] = math.log(rho)
+    extra = [0.0] + [f] * (len(names) - 1)
+    planted = rho < 1 or f > 0
     cols = np.ones(lay["fails"].shape[-1], bool)
     for _ in range(replicates):
-        runs = dict(zip(names, draw(lay, shift, 0.0, rng), strict=True))
+        runs = dict(zip(names, draw(lay, shift, extra if f > 0 else 0.0, rng), strict=True))
         c = verdicts.compare(runs, names, cols)
         claims += c["best_determined"]
-        right += c["best_determined"] and rho < 1 and c["best"] == names[0]
-    return {"rho": rho, "arms": len(names), "claims": _share(claims, replicates),
+        right += c["best_determined"] and planted and c["best"] == names[0]
+    return {"rho": rho, "f": f, "arms": len(names), "claims": _share(claims, replicates),
             "right": _share(right, replicates),
             "wrong": _share(claims - right, replicates)}  # fmt: skip
 
@@ -311,7 +321,10 @@ def study(runs: Mapping[str, Mapping[str, np.ndarray]], comparisons: Mapping[str
         "noise": lay["noise"], "arms": list(matched),
         "by_rho": [best_claims(lay, list(matched), r, replicates,
                                np.random.default_rng([seed, 10**6, i]))
-                   for i, r in enumerate(BEST_RATIOS)]}  # fmt: skip
+                   for i, r in enumerate(BEST_RATIOS)],
+        "by_fail": [best_claims(lay, list(matched), 1.0, replicates,
+                                np.random.default_rng([seed, 10**6 + 1, i]), fx)
+                    for i, fx in enumerate(FAIL_EXTRA)]}  # fmt: skip
     return out
 
 
@@ -371,11 +384,12 @@ def check(pl: Mapping, labels: Sequence[str] | None = None) -> None:
         assert pl["accepts_at_target"], f"the rule rejects planted truth: {pl['least_accepts']}"
     if pl.get("best"):
         assert [b["rho"] for b in pl["best"]["by_rho"]] == list(BEST_RATIOS)
-        for b in pl["best"]["by_rho"]:
+        assert [b["f"] for b in pl["best"]["by_fail"]] == list(FAIL_EXTRA)
+        for b in [*pl["best"]["by_rho"], *pl["best"]["by_fail"]]:
             for k in ("claims", "right", "wrong"):
                 _check_share(b[k], n, b)
             assert b["claims"]["k"] == b["right"]["k"] + b["wrong"]["k"], b
-            assert b["rho"] < 1 or b["right"]["k"] == 0, b
+            assert b["rho"] < 1 or b["f"] > 0 or b["right"]["k"] == 0, b
 
 
 def _check_share(x: Mapping, n: int | None, where) -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 from analysis import common
+from analysis.calibration import fair_planted
 from analysis.calibration.verdicts import EQUIV
 from analysis.common import fmt
 from wmr import controllers
@@ -34,12 +35,13 @@ def short(f: dict) -> str:
         rest.append(f"at the defaults, {_arm(d['best'])} "
                     + ("is beaten by none" if d["best_determined"] else "is the candidate"))
     cells = f["held_out"]["cells"]
-    failing = sorted({cells[i].split("@")[1] for n in f["ranking"]
+    by_fail = [n for n, v in f["against_best"].items() if v["verdict"] == "fails more"]
+    failing = sorted({cells[i].split("@")[1] for n in by_fail
                       for i, k in enumerate(f["arms"][n]["held_out"]["per_cell_failures"]) if k})
-    return (f"Tuned by the shared stage (some adaptation settings stay fixed) on held-out "
+    return (f"Tuned by the shared stage (every adaptation setting free) on held-out "
             f"plants, {lead}"
-            + (f", a lead that rests on where tuned arms fail ({', '.join(failing)})"
-               if failing else "")
+            + (f", its lead over {_names(by_fail)} resting on where they fail "
+               f"({', '.join(failing)})" if by_fail and failing else "")
             + ("; " + "; ".join(rest) if rest else "") + ".")
 
 
@@ -67,6 +69,9 @@ def _names(names: list[str]) -> str:
 #: How the answer names the arms of each verdict against a best shown best.
 _WORSE = {"fails more": "fail more", "higher": "are higher",
           "worse": "fail more or are higher, depending on the restarts"}
+#: The same for a single arm.
+_ONE = {"fails more": "fails more", "higher": "is higher",
+        "worse": "fails more or is higher, depending on the restarts"}
 #: How the answer names the arms of each verdict against a best not shown best.
 _AGAINST = {"tie": "{} tie with it",
             "equivalent": "{} are equivalent to it within 5 %",
@@ -101,7 +106,8 @@ def _who(f: dict, where: str, arms: dict) -> str:
         by: dict[str, list[str]] = {}
         for n, v in f["against_best"].items():
             by.setdefault(v["verdict"], []).append(n)
-        said = "; ".join(f"{_names(ns)} {_WORSE[w]}" for w, ns in by.items())
+        said = "; ".join(f"{_names(ns)} {_WORSE[w] if len(ns) > 1 else _ONE[w]}"
+                         for w, ns in by.items())
         return (f"Tuned by the shared stage, no arm beats {_arm(best)} {where}: against it "
                 f"{said}, at all four pairings of the two arms' restarts.")
     by: dict[str, list[str]] = {}
@@ -119,6 +125,52 @@ def _by_plant(s: dict, cells: list[str]) -> str:
     for c, k in zip(cells, s["per_cell_failures"], strict=True):
         per[c.split("@")[1]] = per.get(c.split("@")[1], 0) + k
     return ", ".join(f"{p} {k}" for p, k in per.items() if k)
+
+
+def _whole(f: dict, failing: list[str], cells: list[str]) -> str:
+    """Where the failures are whole cells (every seed fails) and what the failure test then
+    generalises over (DESIGN §7: the seeds are its replicates; the plants are fixed)."""
+    if not failing:
+        return ""
+    arms = f["arms"]
+    seeds = arms[failing[0]]["held_out"]["tracking_failure"]["n"] // len(cells)
+    per, plants = [], set()
+    for n in failing:
+        by: dict[str, int] = {}
+        for c, k in zip(cells, arms[n]["held_out"]["per_cell_failures"], strict=True):
+            if k == seeds:
+                by[c.split("@")[1]] = by.get(c.split("@")[1], 0) + 1
+                plants.add(c.split("@")[1])
+        if by:
+            per.append(f"{_arm(n)} " + ", ".join(f"{p} {k}" for p, k in by.items()))
+    runs = sum(arms[n]["held_out"]["tracking_failure"]["diverged"] for n in failing)
+    whole = sum(k for n in failing for k in arms[n]["held_out"]["per_cell_failures"]
+                if k == seeds)
+    if not per:
+        return ""
+    total = len({c.split("@")[1] for c in cells})
+    return (f"{whole} of these {runs} failures are whole cells, an arm failing at every one of "
+            f"the {seeds} seeds of a scenario on a plant (cells per plant: {'; '.join(per)}). "
+            "The failure test's replicates are the seeds: it tells that these arms fail more "
+            f"on these {total} plants, not on plants in general, and a verdict won on failures "
+            f"rests on {len(plants)} of the {total} plants ({', '.join(sorted(plants))}).")
+
+
+def _restarts(f: dict) -> str:
+    """Whether each arm's tuning restarts agree (DESIGN §7.7), stated where they do not."""
+    arms = f["arms"]
+    every = [*f["ranking"], *(n for n in arms if n not in f["ranking"])]
+    off = [n for n in every if not arms[n]["agreement"]["agree"]]
+    if not off:
+        return "Every arm's tuning restarts agree within their tolerance."
+    ok = [n for n in every if arms[n]["agreement"]["agree"]]
+    said = ", ".join(f"{_arm(n)} {arms[n]['agreement']['spread']:.4f} (tolerance "
+                     f"{arms[n]['agreement']['tolerance']:.4f})" for n in off)
+    return (f"The tuning's restarts end apart, beyond 5 % of the better objective, for "
+            f"{len(off)} of {len(arms)} arms: {said}"
+            + (f"; only {_names(ok)} {'agrees' if len(ok) == 1 else 'agree'}" if ok else "")
+            + ". Those arms' tuning has not converged at this budget (not raised); the four "
+            "restart pairings carry the difference into each verdict.")
 
 
 def _order(f: dict) -> str:
@@ -187,10 +239,22 @@ def _swap(f: dict) -> str:
             f"tuned, {said('both_at_x')} with both at {x}'s settings, {said('both_at_y')} with "
             f"both at {y}'s. Each law with the other's settings over itself with its own: {x} "
             f"{said('x_swapped')}, {y} {said('y_swapped')}. So {read}."
-            + (" Each law does better with the other's settings than with its own: its own "
-               "tuning did not find its best, so the tuning, not the law, decides the pair as "
-               "tuned." if all(c[k]["word"] in _BETTER for k in ("x_swapped", "y_swapped"))
-               else ""))
+            + _own_missed(c, x, y))
+
+
+def _own_missed(c: dict, x: str, y: str) -> str:
+    """Which law does better with the other's settings than with its own (its own tuning did
+    not find its best)."""
+    better = [k for k in ("x_swapped", "y_swapped") if c[k]["word"] in _BETTER]
+    if len(better) == 2:
+        return (" Each law does better with the other's settings than with its own: its own "
+                "tuning did not find its best, so the tuning, not the law, decides the pair as "
+                "tuned.")
+    if better:
+        law, other = (x, y) if better[0] == "x_swapped" else (y, x)
+        return (f" {law} does better with {other}'s settings than with its own on the held-out "
+                "plants: its own tuning did not find its best there.")
+    return ""
 
 
 #: The words of a comparison in which the first arm does better.
@@ -231,12 +295,13 @@ def answer(r: dict) -> list[str]:
              (f"Held out, arms fail to track (diverged, or RMSE after the transient above "
               f"{ho['tracking_m']:g} m) on these runs, by plant: {per_plant}." if failing else
               "No arm fails to track held out."),
+             *([_whole(f, failing, ho["cells"])] if failing else []),
              *([f"At their defaults {_names(worse)} track every held-out run; tuned "
                 "on the training plants, they do not."] if worse else []),
              *_beside(f, ho, arms),
              f"The paper's set-up, {_arm(pa['arm'])}, is '{pa['against_raw']['verdict']}' "
              f"against the same law on the measured pose and '{pa['against_best']['verdict']}' "
-             f"against {_arm(best)}.", _swap(f), _edges(f)]
+             f"against {_arm(best)}.", _swap(f), _restarts(f), _edges(f)]
     ap = f.get("apart")
     if ap:
         held = {n: {"held_out": s} for n, s in ap["held_out"].items()}
@@ -297,11 +362,12 @@ def planted(f: dict) -> list[str]:
              *[_pc(at(c, r)["power"]) for r in ratios],
              *[_pc(at(c, 1.0, fx)["power"]) for fx in extra], _resolution(c, ratios, at)]
             for k, c in done.items()]  # fmt: skip
-    top, run = max(ratios), pl["as_run"]["least_power"]
+    top = max(ratios)
     cov = [t["coverage"]["share"] for c in done.values() for t in c["truths"]
            if t["coverage"] and t["coverage"]["n"]]  # fmt: skip
     rows_all = [t for c in done.values() for m in ("truths", "as_run") for t in c[m]]
     n_def = sum(t["definite"]["k"] for t in rows_all)
+    n_all = sum(t["definite"]["n"] for t in rows_all)
     n_false = sum(t["false_among_definite"]["k"] for t in rows_all)
     low = [k for k, c in done.items() if at(c, top)["power"]["share"] < 0.9]
     why = {k: (sum(at(c, top)["verdicts"].get(w, 0.0) for w in ("mixed", "restart-dependent")),
@@ -312,29 +378,23 @@ def planted(f: dict) -> list[str]:
         "analysis/calibration/fair_planted.py). It accepts the truth in at least "
         f"{100 * la['share']:.0f} % of them ({la['k']}/{la['n']}, {100 * la['ci_low']:.1f}-"
         f"{100 * la['ci_high']:.1f} %, {la['comparison'].replace('@raw', '')}; target "
-        f"{100 * pl['accept_target']:.0f} %). Of its {n_def:,} definite verdicts over every "
-        f"planted truth and both modes, {n_false:,} {_is(n_false)} false; the rest of its "
-        "verdicts claim nothing (tie, mixed, restart-dependent). The best/best pairing's 95 % "
-        f"interval covers the planted ratio in {100 * min(cov):.0f}-{100 * max(cov):.0f} % (a "
-        f"bootstrap of {next(iter(done.values()))['noise']['seeds']} seeds).",
-        (f"With the restarts alike, {len(done) - len(low)} of {len(done)} comparisons name a "
-         f"planted {top:g}x in at least 90 % of them. "
-         + "".join(f"{k.replace('@raw', '')} does not: at {top:g}x its verdict is 'mixed' or "
-                   f"'restart-dependent' in {100 * why[k][0]:.0f} %, with {why[k][1]} "
-                   f"{_cells(why[k][1])} where a level's failures vary over the seeds "
-                   f"({100 * why[k][2]:.1f} % of its runs), and any failure difference "
-                   "against the accuracy's direction makes a pairing 'mixed'. " for k in low)
-         + f"With the restarts as they ran, the least power at {top:g}x is "
-           f"{100 * run[f'{top:g}']:.0f} % and at 1.1x {100 * run['1.1']:.0f} %; there the "
-           "restarts' own differences are part of the truth."),
+        f"{100 * pl['accept_target']:.0f} %). {n_def:,} of its {n_all:,} verdicts over every "
+        f"planted truth and both modes ({100 * n_def / n_all:.0f} %) are definite, and "
+        f"{n_false:,} of those {_is(n_false)} false; the rest claim nothing (tie, mixed, "
+        "restart-dependent)" + (", so its acceptance is mostly of verdicts that claim nothing"
+                                if 2 * n_def < n_all else "")
+        + ". The best/best pairing's 95 % interval covers the planted ratio in "
+        f"{100 * min(cov):.0f}-{100 * max(cov):.0f} % (a bootstrap of "
+        f"{next(iter(done.values()))['noise']['seeds']} seeds).",
+        _alike(done, low, top, why) + " " + _as_run(done, top),
         "",
-        "Columns (restarts alike): the noise (a seed effect's and a run's own sd, log units); "
-        "the cells that always track, those where some level's failures vary over the seeds "
+        "Columns (restarts alike): the noise (a seed effect's and a run's own sd, log units). "
+        "The cells that always track, those where some level's failures vary over the seeds, "
         "and those where every level fails always or never (failed at every level, not "
-        "noise); the share of the four levels' runs failing in the varying cells; the least "
-        "acceptance over the planted truths; the share naming each planted ratio (equivalent "
+        "noise). The share of the four levels' runs failing in the varying cells; the least "
+        "acceptance over the planted truths. The share naming each planted ratio (equivalent "
         "inside +-5 %, else higher or lower, or worse or better) and each planted extra "
-        "failure probability (fails more); the smallest ratio named in 90 % from there on, "
+        "failure probability (fails more). The smallest ratio named in 90 % from there on, "
         "at every planted ratio at least as far from 1.",
         "", *common.md_table(["comparison", "noise sd", "cells", "random failures",
                               "accepts the truth", *[f"{r:g}x" for r in ratios],
@@ -345,13 +405,124 @@ def planted(f: dict) -> list[str]:
         by = {b["rho"]: b for b in best["by_rho"]}
         eq = by.get(1.0)
         better = [b for r, b in by.items() if r < 1]
+        planted_better = [*better, *best.get("by_fail", [])]
+        most = max((b["right"]["share"] for b in planted_better), default=1.0)
         text += ["", f"The best-arm claim, on the {len(best['arms'])} matched arms' own runs "
-                 f"({best['noise']['tracked']} cells always tracked): with every arm equal it "
-                 f"claims a best in {eq['claims']['k']}/{eq['claims']['n']} replicates"
-                 + "".join(f"; with one arm {100 * (1 - b['rho']):.0f} % better it claims that "
+                 f"({best['noise']['tracked']} cells always tracked). With every arm equal it "
+                 f"claims a best in {eq['claims']['k']}/{eq['claims']['n']} replicates."
+                 + "".join(f" With one arm {100 * (1 - b['rho']):.0f} % better it claims that "
                            f"arm in {b['right']['k']}/{b['right']['n']} and another in "
-                           f"{b['wrong']['k']}" for b in better) + "."]  # fmt: skip
+                           f"{b['wrong']['k']}." for b in better)
+                 + _by_fail(best.get("by_fail", []))
+                 + (f" So it seldom names a planted better arm. {_claims_rest(f)}"
+                    if most < 0.5 else "")]  # fmt: skip
     return ["\n".join(text)]
+
+
+def _by_fail(rows: list[dict]) -> str:
+    """The best-arm claim with the other arms failing more (a clause, or nothing)."""
+    if not rows:
+        return ""
+    n = rows[0]["claims"]["n"]
+    extra = "/".join(f"{100 * b['f']:g}" for b in rows)
+    return (f" With every other arm failing in an extra {extra} % of its runs (independent "
+            f"runs, not whole plants) it claims the arm that fails less in "
+            f"{'/'.join(str(b['right']['k']) for b in rows)} of {n} and another in "
+            f"{'/'.join(str(b['wrong']['k']) for b in rows)}.")
+
+
+def _claims_rest(f: dict) -> str:
+    """What the record's best-arm claims rest on, beside a planted study that seldom names a
+    planted better arm (at most 20 % better, without whole-cell failures)."""
+    out = []
+    if f.get("best_determined"):
+        by: dict[str, list[str]] = {}
+        for n, v in f["against_best"].items():
+            by.setdefault(v["verdict"], []).append(n)
+        parts = []
+        if by.get("fails more"):
+            parts.append(f"against {_names(by['fails more'])} on failures, largely whole "
+                         "cells where an arm fails at every seed, which no planted truth here "
+                         "contains")
+        if by.get("higher"):
+            parts.append(f"against {_names(by['higher'])} on accuracy: " + ", ".join(
+                _gap(f, n) for n in by["higher"]))
+        if by.get("worse"):
+            parts.append(f"against {_names(by['worse'])} on failures or accuracy, by the "
+                         "restarts")
+        out.append(f"The held-out claim ({_arm(f['best'])}) rests {'; '.join(parts)}.")
+    wt = f.get("where_all_track")
+    if wt and wt["best_determined"]:
+        r = [v["tuned"]["ratio"] for v in wt["against_best"].values() if v["tuned"]["ratio"]]
+        out.append(f"The claim where every arm tracks ({_arm(wt['best'])}) rests on gaps of "
+                   f"{min(r):.2f}-{max(r):.2f}x, larger than any planted one: its power there "
+                   "is not measured.")
+    return " ".join(out)
+
+
+def _gap(f: dict, name: str) -> str:
+    """An arm's ratio to the best, with the planted study's power at the largest planted ratio
+    for that comparison (restarts alike) where it has one."""
+    r = f"{f['against_best'][name]['tuned']['ratio']:.2f}x"
+    c = f["planted"]["comparisons"].get(fair_planted.label(name, f["best"]), {})
+    top = max(f["planted"]["ratios"])
+    row = next((t for t in c.get("truths", []) if t["rho"] == top and t["f"] == 0), None)
+    return r if row is None else (f"{r} (a planted {top:g}x is named there in "
+                                  f"{_pc(row['power'])})")
+
+
+def _cmp(label: str) -> str:
+    """A planted comparison's label ("a vs b", arm names) in the arms' labels."""
+    a, b = label.split(" vs ")
+    return f"{_arm(a)} vs {_arm(b)}"
+
+
+def _alike(done: dict, low: list[str], top: float, why: dict) -> str:
+    """Power with the restarts alike: how many comparisons name the largest planted ratio in
+    90 %, and why the others do not."""
+    out = (f"With the restarts alike, {len(done) - len(low)} of {len(done)} comparisons name a "
+           f"planted {top:g}x in at least 90 % of them.")
+    if not low:
+        return out
+    mixed = [100 * why[k][0] for k in low]
+    cells = [why[k][1] for k in low]
+    share = [100 * why[k][2] for k in low]
+    return (out + f" The other {len(low)} ({', '.join(_cmp(k) for k in low)}) do not: at "
+            f"{top:g}x their verdict is 'mixed' or 'restart-dependent' in {min(mixed):.0f}-"
+            f"{max(mixed):.0f} %. Each has {min(cells)}-{max(cells)} cells where a level's "
+            f"failures vary over the seeds ({min(share):.1f}-{max(share):.1f} % of its runs), and "
+            "any failure difference against the accuracy's direction makes a pairing 'mixed'.")
+
+
+def _as_run(done: dict, top: float) -> str:
+    """Power with the restarts as they ran, at the largest planted ratio and at 1.1x: where the
+    four pairings' truths straddle the margin only 'restart-dependent' names the truth; where
+    they do not, a definite verdict must."""
+    def at(rho: float) -> str:
+        rows = [t for c in done.values() for t in c["as_run"] if t["rho"] == rho]
+        split = [t for t in rows if fair_planted._right("restart-dependent", t["truths"], t["f"])]
+        rest = [100 * sum(x for w, x in t["verdicts"].items() if w in fair_planted.DEFINITE
+                          and fair_planted._right(w, t["truths"], t["f"]))
+                for t in rows if t not in split]  # fmt: skip
+        out = f"at {rho:g}x they straddle it in {len(split)} of {len(rows)} comparisons"
+        if split:
+            least = min(100 * t["verdicts"].get("restart-dependent", 0.0) for t in split)
+            out += f", where 'restart-dependent' names the truth in at least {least:.0f} %"
+        if rest:
+            said = _listed(sorted(rest))
+            out += (f"; in the other {len(rest) if len(rest) > 1 else 'one'} a definite "
+                    f"verdict names it in {said} %")
+        return out
+    return (f"With the restarts as they ran, each pairing has its own truth, and the restarts' "
+            f"offsets can put those on both sides of the +-5 % margin. At {top:g}x "
+            f"{at(top).removeprefix(f'at {top:g}x ')}. At 1.1x "
+            f"{at(1.1).removeprefix('at 1.1x ')}.")
+
+
+def _listed(xs: list[float]) -> str:
+    """Percentages listed (one, or all of them: a range would hide how they spread)."""
+    v = [f"{x:.0f}" for x in xs]
+    return v[0] if len(set(v)) == 1 else ", ".join(v[:-1]) + f" and {v[-1]}"
 
 
 def _is(n: int) -> str:

@@ -76,9 +76,11 @@ def notes(record: dict) -> str:
         "adaptation frozen, against itself adapting (the same settings and seeds; "
         "`analysis.regimes.frozen`). A ratio below 1 means the adaptation pays given the "
         "initial gains the tuning chose for the adapting arm; against a tuned fixed law it is "
-        "APID - PID and best adaptive - best fixed. The best adaptive arm's adaptation is inert "
-        f"(the same within 5 % frozen) {said} simulated plants; there its tuned verdict "
-        "against the best fixed arm is withheld. Only each arm's best restart is frozen.", "",
+        "APID - PID, Adaptive BSC - BSC and best adaptive - best fixed. The best adaptive arm's "
+        f"adaptation is inert (the same within 5 % frozen) {said} simulated plants. An "
+        "adaptive law's verdict against a fixed one is withheld where its adaptation is inert "
+        "or, frozen, does not point the verdict's way. Only each arm's best restart is "
+        "frozen.", "",
         *common.md_table(["arm", "pose", *record["mechanisms"]], rows)])
 
 

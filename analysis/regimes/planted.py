@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 from analysis import common
+from analysis.regimes import rule
 
 __all__ = ["span", "detectable", "said", "said_tuned"]
 
@@ -85,6 +86,14 @@ def said(record: dict) -> str:
                           "poses contradict", "accepts truth", "decides right"], rows)])
 
 
+def _few(record: dict, name: str, mechs: list[str]) -> tuple[int, int]:
+    """How many of contrast ``name``'s (mechanism, pose source) cells among ``mechs`` have
+    fewer than ``rule.MIN_PAIRS`` both-stable pairs at the tuned settings, of how many."""
+    v = record["verdict"]["mechanisms"]
+    n = [x["n_stable"] for m in mechs for x in v[m][name]["poses"].values()]
+    return sum(k < rule.MIN_PAIRS for k in n), len(n)
+
+
 def said_tuned(record: dict) -> str:
     """The rule on planted truth at the tuned settings' layout: a sentence and a table ("" for
     a record without it)."""
@@ -99,14 +108,21 @@ def said_tuned(record: dict) -> str:
                          f"{100 * x['accepts']:.0f} %", f"{100 * x['correct']:.0f} %"])
         acc = [round(100 * x["accepts"]) for x in t.values()]
         rng = f"{min(acc)} %" if min(acc) == max(acc) else f"{min(acc)}-{max(acc)} %"
+        few = _few(record, name, c["mechanisms"])
         parts.append(f"For {name} ({c['pairs']} pairs, {c['clusters']} seeds) it accepts the "
                      f"truth in {rng}; the smallest effect named in 90 % of cells: "
-                     f"{detectable(t)}.")
+                     f"{detectable(t)}."
+                     + (f" {few[0]} of its {few[1]} cells {'has' if few[0] == 1 else 'have'} "
+                        f"fewer than {rule.MIN_PAIRS} both-stable pairs at the tuned settings, "
+                        "where the ratio rule names nothing." if few[0] else ""))
     c0 = next(iter(cov.values()))
     return "\n".join([
         "**The rule on planted truth at the tuned layout.** The same synthetic pairs on the "
         "tuned settings' both-stable pairs of the simulated plants (fewer where an arm diverges), "
         f"{c0['replicates']} replicates per planted ratio, Student t at G - 1 df. "
-        + " ".join(parts), "",
+        + " ".join(parts) + " The divergence words are outside this check: the synthetic "
+        "pairs have no divergence. Their exact McNemar test treats each trajectory x seed pair "
+        "as independent, so a divergence verdict speaks at best for the seeds on these "
+        "trajectories, not for other trajectories.", "",
         *common.md_table(["contrast", "planted", "covered (cells)", "accepts truth",
                           "decides right"], rows)])

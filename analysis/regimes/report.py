@@ -42,10 +42,21 @@ def _withheld(record: dict, name: str, mech: str, pose: str) -> str | None:
     close = selection_too_close(record, pose) if name == KEY else None
     if close:
         return close
-    best = record["best"][pose]["best-adaptive"]
-    if name == KEY and frozen_word(record, best, mech, pose) == "same within 5 %":
-        return (f"{controllers.label(best)}'s adaptation inert here (frozen, the same within "
-                "5 %): two tunings of fixed laws")  # fmt: skip
+    frozen = (record.get("adaptation") or {}).get("arms", {})
+    arm, fixed = _arms_of(record, name, pose)
+    if arm in frozen and fixed not in frozen:  # an adaptive law against a fixed one
+        fw = frozen_word(record, arm, mech, pose)
+        if fw == "same within 5 %":
+            return (f"{controllers.label(arm)}'s adaptation inert here (frozen, the same within "
+                    "5 %): two tunings of fixed laws")  # fmt: skip
+        tw = _word(c["tuned"], mech, pose)
+        base = tw.split(" ")[0]
+        # a divergence edge needs the adaptation's own (frozen: the same word); an RMSE one
+        # its direction
+        ok = fw == tw if "divergence" in tw else (fw or "").startswith(base)
+        if fw is not None and base in ("pays", "costs") and not ok:
+            return (f"{controllers.label(arm)}'s adaptation is not shown to {base[:-1]} here "
+                    f"(frozen: {fw}): the tuned gains, not the adaptation, may decide it")
     if "restarts" in c:
         words = [_word(c["tuned"], mech, pose)] + [_word(e, mech, pose)
                                                    for e in c["restarts"].values()]
@@ -81,6 +92,13 @@ def inert(record: dict) -> dict[str, tuple[str, list[str], int]]:
     return out
 
 
+def costs(record: dict, arm: str, pose: str) -> list[str]:
+    """The simulated plants where ``arm``'s adaptation, switched off at its tuned settings,
+    does better than adapting (``frozen_word`` "costs", with or without divergence)."""
+    return [m for m in _kinematic(record)
+            if (frozen_word(record, arm, m, pose) or "").startswith("costs")]
+
+
 def _inert_said(record: dict) -> str:
     """The best adaptive arms' inert plants counted, per pose source ("" without)."""
     by = inert(record)
@@ -103,6 +121,19 @@ def _pays_said(record: dict) -> str:
     return ("Against itself switched off at its tuned settings (the matched contrast of "
             f"adaptation alone), adaptation pays on this many of the {len(kin)} simulated plants "
             "per pose source: " + "; ".join(parts) + ".")
+
+
+def _apid_inert(record: dict) -> str:
+    """Where APID's adaptation is inert (frozen, the same within 5 %), IAPID-NN-DEKF against
+    APID sets the identifier's adaptation against APID's tuned gains held fixed ("" where it
+    is nowhere inert or the record has no frozen runs of it)."""
+    kin = _kinematic(record)
+    n = {p: [m for m in kin if frozen_word(record, "adaptive-pid", m, p) == "same within 5 %"]
+         for p in record["poses"]}  # fmt: skip
+    said = "; ".join(f"{p}: {', '.join(ms)}" for p, ms in n.items() if ms)
+    return (f"Where APID's own adaptation is inert (frozen, the same within 5 %; {said}), "
+            "IAPID-NN-DEKF against APID sets the identifier's adaptation against APID's tuned "
+            "gains held fixed, not against a working adaptation." if said else "")
 
 
 def verdicts(record: dict) -> dict:
@@ -194,7 +225,7 @@ def _answer(record: dict) -> list[str]:
             f"of {len(arms)} tuned arms, at {d['per_setting']} evaluations per free setting) "
             "and on the MuJoCo robot.",
             "The tuned ratios below are descriptive, not verdicts."]
-    scope = [x for x in (_pays_said(record), _bsc_said(record)) if x] + [
+    scope = [x for x in (_pays_said(record), _apid_inert(record), _bsc_said(record)) if x] + [
         "Divergence at the tuned settings on the kinematic plants (10 m bound): "
         + (", ".join(f"{_lbl(c)} {tot[c][0]} of {tot[c][1]}" for c in order if tot[c][0])
            or "none") + ".",
@@ -242,10 +273,15 @@ def _standing(v: dict, kin: list[str], name: str, setting: str | None,
 
 
 def standing_count(record: dict) -> tuple[int, int]:
-    """How many of the tuned (mechanism, contrast, pose source) verdicts off the MuJoCo robot
-    stand (are not withheld), of how many."""
+    """How many of the distinct tuned (mechanism, contrast, pose source) verdicts off the
+    MuJoCo robot stand (are not withheld), of how many: the best arms' contrast is not counted
+    on a pose source where its arms are another contrast's (the same comparison twice)."""
     v, mj = record["verdict"]["mechanisms"], record["design"].get("mujoco", ())
-    cells = [x for m in v if m not in mj for e in v[m].values() for x in e["poses"].values()]
+    twice = {p for p in record["poses"]
+             if any(_arms_of(record, KEY, p) == _arms_of(record, n, p)
+                    for n in record["contrasts"] if n != KEY)}  # fmt: skip
+    cells = [x for m in v if m not in mj for n, e in v[m].items()
+             for p, x in e["poses"].items() if not (n == KEY and p in twice)]  # fmt: skip
     return sum(x["verdict"] != "withheld" for x in cells), len(cells)
 
 
@@ -278,9 +314,9 @@ def _answer_pairings(record: dict, n_dis: int, n_arms: int) -> list[str]:
     off = _inert_said(record)
     return [
         f"**The answer.** Tuned, the best adaptive arm ({ada}) against the best fixed one "
-        f"({fix}): {_standing(v, kin, KEY, None)}"
-        + (f"; switched off at its tuned settings, its adaptation changes the RMSE by less than "
-           f"5 %: {off} simulated plants." if off else "."),
+        f"({fix}): {_standing(v, kin, KEY, None)}."
+        + (f" Switched off at its tuned settings, its adaptation changes the RMSE by less than "
+           f"5 %: {off} simulated plants." if off else ""),
         f"Tuned, IAPID-NN-DEKF against APID on the same pose: {_standing(v, kin, IA, None)}; "
         f"APID against the fixed PID: {_standing(v, kin, 'adaptive-pid - pid', None)}.",
         "At the shared defaults, where the two differ only in the Jacobian, IAPID-NN-DEKF "
@@ -289,9 +325,22 @@ def _answer_pairings(record: dict, n_dis: int, n_arms: int) -> list[str]:
         f"At the defaults, {ada} against {fix}: {_standing(v, kin, KEY, 'default')}.",
         "A tuned verdict stands only where all four pairings of the two arms' best and "
         "runner-up tuning restarts give it, and the best arms only where the tuning told them "
-        f"from the runner-up arm: {kept} of {n_cells} do{mj} ({n_dis} of "
+        "from the runner-up arm. An adaptive law against its fixed one stands only where its "
+        "adaptation, switched off at its tuned settings, points the same way. "
+        f"{kept} of {n_cells} distinct verdicts stand{mj}{_once(record)} ({n_dis} of "
         f"{n_arms} arms' restarts disagree at {d['per_setting']} evaluations per free "
         "setting)."]
+
+
+def _once(record: dict) -> str:
+    """Where the best arms' contrast is another contrast's comparison, which name counts it."""
+    twice = sorted({(p, n) for p in record["poses"] for n in record["contrasts"]
+                    if n != KEY and _arms_of(record, KEY, p) == _arms_of(record, n, p)})
+    if not twice:
+        return ""
+    names = sorted({n for _, n in twice})
+    return (f" (the best arms' contrast counted once, as {', '.join(names)}, on "
+            f"{', '.join(p for p, _ in twice)})")
 
 
 def _reading() -> str:
@@ -349,7 +398,8 @@ def _tracking(record: dict) -> str:
             f"transient is above {tr['threshold_m']:g} m: {tr['reason']}. "
             + _failed(tot)
             + ("Comparing on both-tracking instead of both-stable pairs changes no verdict."
-               if not ch else f"Comparing on both-tracking pairs changes {len(ch)} verdicts: "
+               if not ch else f"Comparing on both-tracking pairs changes {len(ch)} "
+               f"{'verdict' if len(ch) == 1 else 'verdicts'}: "
                + said + ".")
             + " The counts per mechanism and pose, with Clopper-Pearson intervals, are in the "
               "tracking table below.")
