@@ -201,12 +201,13 @@ def _tuned_sentence(reg: dict) -> str:
 
     kept, n = standing_count(reg)
     bsc = bsc_standing(reg)
-    by: dict[tuple, list[str]] = {}  # (arm, inert, costs, plants) -> pose sources
+    by: dict[str, list[tuple]] = {}  # arm -> (pose source, inert, costs, plants)
     for p, (a, ms, k) in inert(reg).items():
-        by.setdefault((a, len(ms), len(costs(reg, a, p)), k), []).append(p)
-    off = "; ".join(f"{controllers.label(a)}'s adaptation is inert on {i} and costs on {c} of "
-                    f"{k} plants " + ("per pose source" if len(ps) == len(reg["poses"]) else
-                                      f"({', '.join(ps)})") for (a, i, c, k), ps in by.items())
+        by.setdefault(a, []).append((p, len(ms), len(costs(reg, a, p)), k))
+    off = "; ".join(f"{controllers.label(a)}'s adaptation is inert on "
+                    f"{'/'.join(str(x[1]) for x in xs)} and costs on "
+                    f"{'/'.join(str(x[2]) for x in xs)} of {xs[0][3]} plants "
+                    f"({'/'.join(x[0] for x in xs)})" for a, xs in by.items())
     return (f"Tuned, {kept} of {n} distinct simulated-plant verdicts survive the restart, "
             "best-arm and adaptation-off checks"
             + (f"; Adaptive BSC against BSC {bsc}." if bsc else ".")

@@ -82,6 +82,31 @@ def test_clopper_pearson_and_exact_mcnemar_closed_forms():
     assert rstats.mcnemar([True, False], [True, False])["p"] == 1.0
 
 
+def test_the_seed_sign_flip_test_against_enumeration_and_clustered_failures():
+    """The convolution's p-value equals the share of the 2^S sign assignments (an independent
+    enumeration), bit for bit, on random per-seed differences; closed forms: S seeds each +1
+    give 2 * 0.5^S, no difference gives 1. Failures clustered in one seed (a diverges on all
+    6 trajectories of seed 0, b on none; no other discordance): McNemar over the runs says
+    p = 2 * 0.5^6 (significant), the seed test says 1 (one seed decides nothing)."""
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        d = rng.integers(-3, 4, rng.integers(1, 12))
+        nz = d[d != 0]
+        signs = 1 - 2 * ((np.arange(2**nz.size)[:, None] >> np.arange(nz.size)) & 1)
+        want = float(np.mean(np.abs(signs @ nz) >= abs(d.sum()))) if nz.size else 1.0
+        assert rstats.sign_flip(d) == want, d
+    assert rstats.sign_flip([1] * 8) == 2 * 0.5**8 and rstats.sign_flip([0, 0]) == 1.0
+    seeds = np.repeat(np.arange(10), 6)
+    a = seeds == 0
+    r = rstats.paired_failures(a, np.zeros(60, bool), seeds)
+    assert r["p_mcnemar"] == pytest.approx(2 * 0.5**6) and r["p"] == 1.0
+    assert r["per_seed"] == [6] + [0] * 9 and (r["a_only"], r["b_only"]) == (6, 0)
+    # the same six failures spread over six seeds: both tests agree
+    r = rstats.paired_failures(np.isin(np.arange(60), np.arange(0, 36, 6)), np.zeros(60, bool),
+                               seeds)  # fmt: skip
+    assert r["p"] == pytest.approx(2 * 0.5**6) == r["p_mcnemar"]
+
+
 def test_two_always_diverging_arms_are_not_equivalent():
     r = rstats.pair_rmse([np.nan] * 10, [True] * 10, [np.nan] * 10, [True] * 10)
     assert r["n_stable"] == 0 and r["mean_diff"] is None and r["mean_a"] is None

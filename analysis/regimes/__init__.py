@@ -405,7 +405,7 @@ def _known(rows, tuned: dict, known: dict) -> dict:
     import pandas as pd
 
     p = pd.concat(parts, ignore_index=True)
-    div = {pose: {m: rstats.mcnemar(g.failed_a, g.failed_b)
+    div = {pose: {m: rstats.paired_failures(g.failed_a, g.failed_b, g.seed)
                   for m, g in p[p.pose == pose].groupby("mechanism", sort=False)}
            for pose in POSES}  # fmt: skip
     ok = p[~p.failed_a & ~p.failed_b].copy()
@@ -476,7 +476,7 @@ def tracking(rows, tuned: dict, record: dict) -> dict:
     """The second endpoint, tracking failure (``_regimes_stats.TRACKING_M``): per setting level,
     pose source, mechanism and arm the count with its Clopper-Pearson interval (as
     divergence's); and each verdict that changes when "diverged" is replaced by "failed to
-    track" (the model on the both-tracking pairs, McNemar on tracking failure)."""
+    track" (the model on the both-tracking pairs, the seed sign-flip test on tracking failure)."""
     r = rows.assign(failed=rstats.failed_to_track(rows.failed, rows.tail_position))
     alt = analyse(r, tuned)
     before = report.verdicts(record)["mechanisms"]

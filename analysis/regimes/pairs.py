@@ -81,14 +81,15 @@ def model_frame(rows, tuned: dict, contrast: tuple[str, str], level: str):
 
 
 def endpoints(p, mechs, trajs) -> dict:
-    """Per mechanism: paired divergence (McNemar over its trajectories and seeds) and the RMSE
-    on both-stable pairs per trajectory."""
+    """Per mechanism: paired divergence (the seed sign-flip test over its trajectories and
+    seeds, McNemar beside it) and the RMSE on both-stable pairs per trajectory."""
     out = {}
     for m in mechs:
         pm = p[p.mechanism == m]
         if pm.empty:
             continue
-        out[m] = {"divergence": rstats.mcnemar(pm.failed_a, pm.failed_b), "trajectories": {}}
+        out[m] = {"divergence": rstats.paired_failures(pm.failed_a, pm.failed_b, pm.seed),
+                  "trajectories": {}}
         for t in trajs:
             q = pm[pm.trajectory == t]
             if not q.empty:

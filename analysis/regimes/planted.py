@@ -121,8 +121,8 @@ def said_tuned(record: dict) -> str:
         "tuned settings' both-stable pairs of the simulated plants (fewer where an arm diverges), "
         f"{c0['replicates']} replicates per planted ratio, Student t at G - 1 df. "
         + " ".join(parts) + " The divergence words are outside this check: the synthetic "
-        "pairs have no divergence. Their exact McNemar test treats each trajectory x seed pair "
-        "as independent, so a divergence verdict speaks at best for the seeds on these "
-        "trajectories, not for other trajectories.", "",
+        "pairs have no divergence. Their test is the exact sign-flip test over the seeds (the "
+        "runs of a seed share its noise, so the seed is the unit), and a divergence verdict "
+        "speaks for the seeds on these trajectories, not for other trajectories.", "",
         *common.md_table(["contrast", "planted", "covered (cells)", "accepts truth",
                           "decides right"], rows)])

@@ -4,11 +4,11 @@ APID and IAPID-NN-DEKF at the shared defaults except the rate ``mu``, at x1, x10
 of the default (the retired rate grid's readings; x100 is the per-second reading of the paper's
 ``mu``, DESIGN §5), on each pose source (both arms on the same one) and the kinematic mechanisms,
 every trajectory.  Per rate, pose source and mechanism: each arm's divergence (Clopper-Pearson),
-the paired divergence (exact McNemar), and the geometric-mean ratio of both-stable RMSE after the
-transient, IAPID / APID, with a Student t interval clustered by seed (the pairs of one seed on
-the mechanism's trajectories share its noise; descriptive, no model).  Which rate each arm
-should run at is the tuning stage's question; this only shows how the contrast moves with the
-rate.
+the paired divergence (the seed sign-flip test), and the geometric-mean ratio of both-stable
+RMSE after the transient, IAPID / APID, with a Student t interval clustered by seed (the pairs
+of one seed on the mechanism's trajectories share its noise; descriptive, no model).  Which
+rate each arm should run at is the tuning stage's question; this only shows how the contrast
+moves with the rate.
 """
 
 from __future__ import annotations
@@ -84,7 +84,8 @@ def analyse(rows) -> dict | None:
                 out["poses"].setdefault(pose, {}).setdefault(m, {})[f"x{mult:g}"] = {
                     "divergence": {c: rstats.divergence(g[g.controller == c].failed)
                                    for c in ARMS},
-                    "paired": rstats.mcnemar(j.failed_a, j.failed_b), **_ratio(stable(j))}
+                    "paired": rstats.paired_failures(j.failed_a, j.failed_b, j.seed),
+                    **_ratio(stable(j))}
     return out
 
 

@@ -138,8 +138,9 @@ def _apid_inert(record: dict) -> str:
 
 def verdicts(record: dict) -> dict:
     """Per mechanism and contrast: the verdict on each pose source (the model's cell estimate
-    and that pose's McNemar), and the mechanism's (``rule._combine``); beside it the ratio
-    averaged over the pose sources; and the same at the shared defaults (``"default"``)."""
+    and that pose's paired divergence test), and the mechanism's (``rule._combine``); beside it
+    the ratio averaged over the pose sources; and the same at the shared defaults
+    (``"default"``)."""
     out: dict = {"rule": rule.__doc__.split("\n\n", 1)[1].strip(), "mechanisms": {}}
     for m in record["mechanisms"]:
         out["mechanisms"][m] = {}

@@ -14,8 +14,9 @@ On each pose source (the model's cell estimate):
   runner-up runs, whenever either arm's restarts disagree; or the mechanism is a MuJoCo robot
   (the arms were tuned on kinematic training plants, the PID family's tuned gains do not track
   there, and the 2 ms physics step is not converged: the robot ladder's audit);
-- ``"costs (divergence)"``: ``a`` diverges significantly more often than ``b`` (exact McNemar at
-  0.05); ``"pays (divergence)"``: ``b`` does;
+- ``"costs (divergence)"``: ``a`` diverges significantly more often than ``b`` (the exact
+  sign-flip test over the seeds at 0.05, ``stats.paired_failures``); ``"pays (divergence)"``:
+  ``b`` does;
 - ``"same within 5 %"``: else, the 95 % interval of the ratio lies inside ``[1/1.05, 1.05]``
   (a difference that exists but is smaller than the margin is "the same" in practice);
 - ``"pays"``: else, the interval lies below 1; ``"costs"``: above 1;
@@ -47,8 +48,9 @@ OPEN = ("undecided", "withheld")
 
 
 def _div(c: dict, mech: str, pose: str, setting: str | None = "tuned") -> int:
-    """+1 when a diverges significantly more often than b on ``mech`` and ``pose`` (exact
-    McNemar at 0.05), -1 when b does, 0 otherwise (``setting`` None: ``c`` is one level's)."""
+    """+1 when a diverges significantly more often than b on ``mech`` and ``pose`` (the seed
+    sign-flip test at 0.05), -1 when b does, 0 otherwise (``setting`` None: ``c`` is one
+    level's)."""
     d = (c if setting is None else c[setting])[pose].get(mech, {}).get("divergence")
     if not (d and d["p"] < 0.05):
         return 0

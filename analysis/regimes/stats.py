@@ -1,8 +1,11 @@
 """The regime study's endpoints and its model (DESIGN §7.3-7.5; issue 22 items 4 and 5).
 
 - **Divergence** per arm: the share of diverged runs with its exact Clopper-Pearson interval
-  (``scipy.stats.binomtest``); paired: the exact McNemar test on the discordant pairs
-  (``statsmodels``' ``mcnemar(exact=True)``), a pair being the same (trajectory, seed).
+  (``scipy.stats.binomtest``); paired (:func:`paired_failures`): per seed, the trajectories
+  where a fails and b does not minus the reverse, tested by the exact sign-flip test over the
+  seeds (:func:`sign_flip`: common random numbers tie every run of a seed, so the seed, not
+  the (trajectory, seed) pair, is the unit that can be swapped under the null; the exact
+  McNemar test of :func:`mcnemar` treats the pairs as independent and is kept beside it).
 - **RMSE** after the transient on the pairs where both arms stayed within the bound, with that
   count beside it: the means, their difference with its paired-t interval, and equivalence
   (``wmr.stats.tost``) at ±5 % of the reference arm's mean and at ±1 mm.  No stable pair: no
@@ -27,7 +30,8 @@ import numpy as np
 
 from wmr import stats
 
-__all__ = ["REL_MARGIN", "ABS_MARGIN", "ALPHA", "divergence", "mcnemar", "stable_pairs",
+__all__ = ["REL_MARGIN", "ABS_MARGIN", "ALPHA", "divergence", "mcnemar", "sign_flip",
+           "paired_failures", "stable_pairs",
            "pair_rmse", "fit_model", "estimates", "contrast_model", "T_DF", "TRACKING_M",
            "TRACKING_REASON", "failed_to_track"]  # fmt: skip
 
@@ -85,6 +89,39 @@ def mcnemar(a: Sequence[bool], b: Sequence[bool]) -> dict:
     p = 1.0 if table[0][1] + table[1][0] == 0 else float(_mcnemar(table, exact=True).pvalue)
     return {"pairs": int(a.size), "both": table[0][0], "a_only": table[0][1],
             "b_only": table[1][0], "p": p}  # fmt: skip
+
+
+def sign_flip(d: Sequence[int]) -> float:
+    """The exact two-sided sign-flip p-value of the sum of the integer differences ``d`` (one
+    per seed): the share of the ``2^S`` sign assignments whose sum is at least as far from 0
+    as the observed one, by convolving the seeds' two-point laws (exact, any ``S``)."""
+    d = np.asarray(d, dtype=np.int64)
+    d = d[d != 0]
+    if d.size == 0:
+        return 1.0
+    total = int(np.abs(d).sum())
+    law = np.zeros(2 * total + 1)  # P(sum = k - total); every partial sum stays inside
+    law[total] = 1.0
+    for x in np.abs(d):
+        law = 0.5 * (np.roll(law, int(x)) + np.roll(law, -int(x)))
+    observed = abs(int(d.sum()))
+    return float(law[np.abs(np.arange(-total, total + 1)) >= observed].sum())
+
+
+def paired_failures(a: Sequence[bool], b: Sequence[bool], seeds: Sequence) -> dict:
+    """Paired failure indicators ``a``, ``b`` of the same runs (one per (trajectory, seed)),
+    ``seeds`` each run's seed: the discordant counts, the per-seed differences (``per_seed``:
+    runs where a fails and b does not minus the reverse) and their exact sign-flip p-value
+    over the seeds (``p``; 1 with no discordant run), with the exact McNemar p-value over the
+    runs beside it (``p_mcnemar``)."""
+    a, b = np.asarray(a, dtype=bool), np.asarray(b, dtype=bool)
+    seeds = np.asarray(seeds)
+    order = list(dict.fromkeys(seeds.tolist()))
+    per = [int(np.sum(a[seeds == s] & ~b[seeds == s]) - np.sum(b[seeds == s] & ~a[seeds == s]))
+           for s in order]  # fmt: skip
+    m = mcnemar(a, b)
+    return {**{k: m[k] for k in ("pairs", "both", "a_only", "b_only")},
+            "p": sign_flip(per), "p_mcnemar": m["p"], "seeds": len(order), "per_seed": per}
 
 
 def stable_pairs(ra, da, rb, db) -> tuple[np.ndarray, np.ndarray]:
