@@ -96,6 +96,8 @@ def test_the_seed_sign_flip_test_against_enumeration_and_clustered_failures():
         want = float(np.mean(np.abs(signs @ nz) >= abs(d.sum()))) if nz.size else 1.0
         assert rstats.sign_flip(d) == want, d
     assert rstats.sign_flip([1] * 8) == 2 * 0.5**8 and rstats.sign_flip([0, 0]) == 1.0
+    with pytest.raises(ValueError):
+        rstats.sign_flip([0.5, 0.5])  # not a count: truncating it would say p = 1
     seeds = np.repeat(np.arange(10), 6)
     a = seeds == 0
     r = rstats.paired_failures(a, np.zeros(60, bool), seeds)
@@ -363,6 +365,11 @@ def test_the_committed_record_passes_its_check_and_is_in_the_report():
     assert regimes.render(record).rstrip() in (PAPER / "report.md").read_text()
     assert record["level"] in regimes.LEVELS and record["level"] in regimes.render(record)
     assert report.verdicts(record) == record["verdict"]  # the record's verdicts are the rule's
+    # a paired failure test whose p is not its per-seed differences' fails the check
+    bad = json.loads(json.dumps(record))
+    bad["contrasts"][report.BSC]["tuned"]["raw"]["lag-delay"]["divergence"]["p"] = 0.5
+    with pytest.raises(AssertionError):
+        regimes.check(bad)
     # a rule that rejects the planted truth at the tuned layout fails the check (DESIGN §7.6)
     row = record["coverage_tuned"]["contrasts"][report.BSC]["intervals"]["t(G-1)"]["1"]
     row["accepts"] = 0.85

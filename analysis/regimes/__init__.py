@@ -503,9 +503,8 @@ def _untuned(level: str) -> bool:
 def check(record: dict) -> None:
     """The record's claims hold: every compared pair of arms ran matched (the same scenarios'
     context, pose and shared settings but the compared factor and each arm's tuned settings),
-    each arm on the two pose sources differs only in the pose, the divergence counts add up,
-    no stable-pair statistic exists without stable pairs, and "equivalent" is never claimed
-    without them."""
+    each arm on the two pose sources differs only in the pose, the counts and paired tests add
+    up, and no stable-pair statistic or "equivalent" exists without stable pairs."""
     free = {c: {f["key"].split(".")[2].split("[")[0].split(" ")[0] for f in t["free"]}
             for c, t in record["tuning"]["arms"]["raw"].items()}  # fmt: skip
     for level, by_pose in record["arms_run"].items():
@@ -546,6 +545,7 @@ def check(record: dict) -> None:
             for x in by.values():
                 assert 0 <= x["coverage_cells"] <= 1 and abs(sum(x["verdicts"].values()) - 1) < 1e-9
                 assert iv != "t(G-1)" or c["replicates"] < 100 or x["accepts"] >= 0.9, x
+    rstats.check_paired(record)  # every paired failure test's p from its per-seed differences
     tr = record["tracking"]
     for lv, by in tr["counts"].items():  # a diverged run failed to track: counts at least those
         for pose, mechs in by.items():

@@ -502,10 +502,12 @@ def _extra(record: dict) -> str:
     known = {}
     if k and k["model"]:
         for m, e in k["model"]["mechanisms"].items():
-            more = [p for p, d in k["divergence"].items() if m in d and d[m]["p"] < 0.05
-                    and d[m]["a_only"] > d[m]["b_only"]]  # fmt: skip
-            known[m] = _ci(e) + (f" (the adaptive arm diverges more on the {', '.join(more)} "
-                                 "pose)" if more else "")
+            said = []
+            for who, sign in (("the adaptive arm", 1), ("the known-mechanism PID", -1)):
+                on = [p for p, d in k["divergence"].items() if m in d and d[m]["p"] < 0.05
+                      and sign * (d[m]["a_only"] - d[m]["b_only"]) > 0]  # fmt: skip
+                said += [f"{who} diverges more on the {', '.join(on)} pose"] if on else []
+            known[m] = _ci(e) + (f" ({'; '.join(said)})" if said else "")
     paper = {}
     for m, x in record["paper_arm"]["endpoints"].items():
         t = [y for y in x["trajectories"].values() if y["n_stable"]]

@@ -31,7 +31,7 @@ import numpy as np
 from wmr import stats
 
 __all__ = ["REL_MARGIN", "ABS_MARGIN", "ALPHA", "divergence", "mcnemar", "sign_flip",
-           "paired_failures", "stable_pairs",
+           "paired_failures", "check_paired", "stable_pairs",
            "pair_rmse", "fit_model", "estimates", "contrast_model", "T_DF", "TRACKING_M",
            "TRACKING_REASON", "failed_to_track"]  # fmt: skip
 
@@ -94,7 +94,10 @@ def mcnemar(a: Sequence[bool], b: Sequence[bool]) -> dict:
 def sign_flip(d: Sequence[int]) -> float:
     """The exact two-sided sign-flip p-value of the sum of the integer differences ``d`` (one
     per seed): the share of the ``2^S`` sign assignments whose sum is at least as far from 0
-    as the observed one, by convolving the seeds' two-point laws (exact, any ``S``)."""
+    as the observed one, by convolving the seeds' two-point laws (exact in float64 up to 53
+    seeds with a difference: every term is a count over ``2^S``)."""
+    if not np.all(np.equal(np.mod(np.asarray(d, dtype=float), 1), 0)):
+        raise ValueError(f"sign_flip takes integer differences, not {d!r}")
     d = np.asarray(d, dtype=np.int64)
     d = d[d != 0]
     if d.size == 0:
@@ -122,6 +125,20 @@ def paired_failures(a: Sequence[bool], b: Sequence[bool], seeds: Sequence) -> di
     m = mcnemar(a, b)
     return {**{k: m[k] for k in ("pairs", "both", "a_only", "b_only")},
             "p": sign_flip(per), "p_mcnemar": m["p"], "seeds": len(order), "per_seed": per}
+
+
+def check_paired(obj) -> int:
+    """Every paired failure test in ``obj`` (a record: any dict with ``per_seed`` and
+    ``p_mcnemar``) has its p-value from its per-seed differences, whose sum is its discordant
+    counts' difference, one per seed; returns how many were checked."""
+    if isinstance(obj, dict):
+        if "per_seed" in obj and "p_mcnemar" in obj:
+            assert obj["p"] == sign_flip(obj["per_seed"]), obj
+            assert sum(obj["per_seed"]) == obj["a_only"] - obj["b_only"], obj
+            assert len(obj["per_seed"]) == obj["seeds"], obj
+            return 1
+        return sum(check_paired(v) for v in obj.values())
+    return sum(check_paired(v) for v in obj) if isinstance(obj, list) else 0
 
 
 def stable_pairs(ra, da, rb, db) -> tuple[np.ndarray, np.ndarray]:
