@@ -197,13 +197,14 @@ def regimes(reg: dict) -> Finding:
 def _tuned_sentence(reg: dict) -> str:
     """How many tuned verdicts off the MuJoCo robot hold at every pairing of the two arms'
     tuning restarts (and, for the best arms, their choice)."""
-    from analysis.regimes.report import bsc_standing, costs, inert, standing_count
+    from analysis.regimes.frozen import plants_where
+    from analysis.regimes.report import bsc_standing, inert, standing_count
 
     kept, n = standing_count(reg)
     bsc = bsc_standing(reg)
     by: dict[str, list[tuple]] = {}  # arm -> (pose source, inert, costs, plants)
     for p, (a, ms, k) in inert(reg).items():
-        by.setdefault(a, []).append((p, len(ms), len(costs(reg, a, p)), k))
+        by.setdefault(a, []).append((p, len(ms), len(plants_where(reg, a, p, "costs")), k))
     off = "; ".join(f"{controllers.label(a)}'s adaptation is inert on "
                     f"{'/'.join(str(x[1]) for x in xs)} and costs on "
                     f"{'/'.join(str(x[2]) for x in xs)} of {xs[0][3]} plants "

@@ -486,9 +486,8 @@ def _check_fair(fair: dict) -> None:
 
     paper = fair["paper_arm"]["arm"]
     raw = f"{paper.split('@')[0]}@{fairmod.POSE}"  # the paper's law on the measured pose
-    fair_planted.check(fair["planted"], [fair_planted.label(a, b) for a, b in
-                                         [*((n, fair["best"]) for n in fair["ranking"][1:]),
-                                          (paper, raw)]])
+    fair_planted.check(fair["planted"],
+                       list(fair_planted.comparisons(fair["ranking"], fair["best"], paper, raw)))
     b = fair["budget"]
     for name, t in fair["arms"].items():
         want = b["per_setting"] * len(t["free"])

@@ -61,7 +61,7 @@ from analysis.regimes import stats as rstats
 
 __all__ = ["RATIOS", "FAIL_EXTRA", "RUN_RATIOS", "BEST_RATIOS", "MODES", "false_of", "layout",
            "pairing_truths", "draw", "planted_pair", "best_claims", "study", "summarise",
-           "check", "label", "REPLICATES", "ACCEPT", "DEFINITE"]  # fmt: skip
+           "check", "label", "comparisons", "REPLICATES", "ACCEPT", "DEFINITE"]  # fmt: skip
 
 #: Planted RMSE ratios of arm a to arm b (1.02 and 0.97: inside the ±5 % margin).
 RATIOS = (1.0, 1.02, 0.97, 1.05, 0.95, 1.10, 0.90, 1.20, 0.80, 1.50, 0.67)
@@ -184,13 +184,9 @@ def draw(lay: Mapping, log_shift: np.ndarray, f: float | Sequence[float],
         donors = rng.choice(np.flatnonzero(lay["tracked"]), int(varying.sum()))
         r[..., varying] = r[..., donors]
     fl[..., lay["fixed"]] = True
-    if np.isscalar(f):
-        if f > 0:
-            fl[0] |= (rng.random(fl[0].shape) < f) & ~lay["fixed"]
-    else:
-        for i, fi in enumerate(f):
-            if fi > 0:
-                fl[i] |= (rng.random(fl[i].shape) < fi) & ~lay["fixed"]
+    for i, fi in enumerate([f] if np.isscalar(f) else f):  # draws only where one is planted
+        if fi > 0:
+            fl[i] |= (rng.random(fl[i].shape) < fi) & ~lay["fixed"]
     shift = np.asarray(log_shift, float)[:, None, None, None]
     off = lay["offset"][:, :, None, :] if as_run else 0.0
     top = (float(np.max(np.abs(resid))) + float(np.max(np.abs(log_shift)))
@@ -211,6 +207,13 @@ def draw(lay: Mapping, log_shift: np.ndarray, f: float | Sequence[float],
 def label(a: str, b: str) -> str:
     """A planted comparison's name in the record: arm ``a`` against arm ``b``."""
     return f"{a} vs {b}"
+
+
+def comparisons(ranking: Sequence[str], best: str, paper: str, raw: str) -> dict:
+    """The comparisons the fair-tuning record reports (label -> (a, b)): each ranked arm after
+    the first against the candidate best, and the paper's arm against its law on the raw
+    pose."""
+    return {label(a, b): (a, b) for a, b in [*((n, best) for n in ranking[1:]), (paper, raw)]}
 
 
 def _share(k: int, n: int) -> dict:
@@ -273,7 +276,7 @@ def best_claims(lay: Mapping, names: list[str], rho: float, replicates: int,
     planted = rho < 1 or f > 0
     cols = np.ones(lay["fails"].shape[-1], bool)
     for _ in range(replicates):
-        runs = dict(zip(names, draw(lay, shift, extra if f > 0 else 0.0, rng), strict=True))
+        runs = dict(zip(names, draw(lay, shift, extra, rng), strict=True))
         c = verdicts.compare(runs, names, cols)
         claims += c["best_determined"]
         right += c["best_determined"] and planted and c["best"] == names[0]

@@ -504,7 +504,7 @@ def _as_run(done: dict, top: float) -> str:
         rest = [100 * sum(x for w, x in t["verdicts"].items() if w in fair_planted.DEFINITE
                           and fair_planted._right(w, t["truths"], t["f"]))
                 for t in rows if t not in split]  # fmt: skip
-        out = f"at {rho:g}x they straddle it in {len(split)} of {len(rows)} comparisons"
+        out = f"they straddle it in {len(split)} of {len(rows)} comparisons"
         if split:
             least = min(100 * t["verdicts"].get("restart-dependent", 0.0) for t in split)
             out += f", where 'restart-dependent' names the truth in at least {least:.0f} %"
@@ -514,9 +514,8 @@ def _as_run(done: dict, top: float) -> str:
                     f"verdict names it in {said} %")
         return out
     return (f"With the restarts as they ran, each pairing has its own truth, and the restarts' "
-            f"offsets can put those on both sides of the +-5 % margin. At {top:g}x "
-            f"{at(top).removeprefix(f'at {top:g}x ')}. At 1.1x "
-            f"{at(1.1).removeprefix('at 1.1x ')}.")
+            f"offsets can put those on both sides of the +-5 % margin. At {top:g}x {at(top)}. "
+            f"At 1.1x {at(1.1)}.")
 
 
 def _listed(xs: list[float]) -> str:

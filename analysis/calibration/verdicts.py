@@ -311,7 +311,6 @@ def assemble(entries: Mapping[str, dict], runs: Mapping[str, Mapping[str, np.nda
     out["rule"] = RULE
     from analysis.calibration import fair_planted  # it judges with this module's rule
 
-    pairs = [(n, best) for n in out["ranking"][1:]] + [(paper, raw)]
-    comparisons = {fair_planted.label(a, b): (a, b) for a, b in pairs}
+    comparisons = fair_planted.comparisons(out["ranking"], best, paper, raw)
     out["planted"] = fair_planted.study(runs, comparisons, main, matched)
     return out

@@ -10,6 +10,7 @@ from analysis.regimes import stats as rstats
 from wmr import controllers
 
 __all__ = ["FIXED", "ADAPTIVE", "POSES", "PAIRINGS", "best_arm", "pairs_of", "paper_pairs",
+           "kinematic",
            "join", "stable", "model_frame", "endpoints", "best_label",
            "selection_too_close"]
 
@@ -126,3 +127,8 @@ def selection_too_close(record: dict, pose: str) -> str | None:
             return (f"best arm not chosen by the tuning ({la} over {lb} by {margin:.4f}, "
                     f"restart spread {spread:.4f})")
     return None
+
+
+def kinematic(record: dict) -> list[str]:
+    """The record's simulated plants (its mechanisms off the MuJoCo robot), in order."""
+    return [m for m in record["mechanisms"] if m not in record["design"].get("mujoco", ())]

@@ -9,21 +9,17 @@ from __future__ import annotations
 import numpy as np
 
 from analysis import common
-from analysis.regimes import planted, rule
-from analysis.regimes.pairs import best_label, selection_too_close
+from analysis.regimes import frozen, planted, rule
+from analysis.regimes.frozen import frozen_word, inert
+from analysis.regimes.pairs import best_label, kinematic, selection_too_close
 from analysis.regimes.planted import IA, KEY, span
 from analysis.regimes.rule import MIN_PAIRS, _combine, _div, _one, _word, classify
 from wmr import controllers
 
 __all__ = ["verdicts", "classify", "notes", "table", "figure", "standing_count", "frozen_word",
-           "MIN_PAIRS"]
+           "inert", "MIN_PAIRS"]
 
 BSC = "adaptive-bsc - backstepping"
-
-
-def _kinematic(record: dict) -> list[str]:
-    """The record's simulated plants (its mechanisms off the MuJoCo robot), in order."""
-    return [m for m in record["mechanisms"] if m not in record["design"].get("mujoco", ())]
 
 
 def _arms_of(record: dict, name: str, pose: str) -> tuple[str, str]:
@@ -67,73 +63,6 @@ def _withheld(record: dict, name: str, mech: str, pose: str) -> str | None:
     bad = [a for a in _arms_of(record, name, pose)
            if a in arms and not arms[a]["agreement"]["agree"]]  # fmt: skip
     return f"tuning restarts disagree ({', '.join(bad)})" if bad else None
-
-
-def frozen_word(record: dict, arm: str, mech: str, pose: str) -> str | None:
-    """The verdict word of "``arm`` - ``arm`` frozen" at the tuned settings on ``mech`` /
-    ``pose`` (``analysis.regimes.frozen``), or None where the record has no frozen runs of
-    it."""
-    e = (record.get("adaptation") or {}).get("arms", {}).get(arm)
-    return _word(e, mech, pose) if e and mech in e.get(pose, {}) else None
-
-
-def inert(record: dict) -> dict[str, tuple[str, list[str], int]]:
-    """Per pose source: the best adaptive arm, the simulated plants where its adaptation is
-    inert (switched off at its tuned settings, the same within 5 %), and how many simulated
-    plants there are; empty without frozen runs."""
-    if not record.get("adaptation"):
-        return {}
-    kin = _kinematic(record)
-    out = {}
-    for pose in record["poses"]:
-        a = record["best"][pose]["best-adaptive"]
-        out[pose] = (a, [m for m in kin if frozen_word(record, a, m, pose) == "same within 5 %"],
-                     len(kin))  # fmt: skip
-    return out
-
-
-def costs(record: dict, arm: str, pose: str) -> list[str]:
-    """The simulated plants where ``arm``'s adaptation, switched off at its tuned settings,
-    does better than adapting (``frozen_word`` "costs", with or without divergence)."""
-    return [m for m in _kinematic(record)
-            if (frozen_word(record, arm, m, pose) or "").startswith("costs")]
-
-
-def _inert_said(record: dict) -> str:
-    """The best adaptive arms' inert plants counted, per pose source ("" without)."""
-    by = inert(record)
-    return "; ".join(f"{_lbl(a)} ({p}) on {len(ms)} of {n}" for p, (a, ms, n) in by.items())
-
-
-def _pays_said(record: dict) -> str:
-    """Per adaptive arm with frozen runs: on how many simulated plants its adaptation pays
-    against itself switched off (``frozen_word`` "pays", with or without divergence), per pose
-    source ("" without frozen runs)."""
-    arms = (record.get("adaptation") or {}).get("arms", {})
-    kin = _kinematic(record)
-    parts = []
-    for a in arms:
-        n = {p: sum((frozen_word(record, a, m, p) or "").startswith("pays") for m in kin)
-             for p in record["poses"]}  # fmt: skip
-        parts.append(f"{_lbl(a)} " + ", ".join(f"{n[p]} {p}" for p in record["poses"]))
-    if not parts:
-        return ""
-    return ("Against itself switched off at its tuned settings (the matched contrast of "
-            f"adaptation alone), adaptation pays on this many of the {len(kin)} simulated plants "
-            "per pose source: " + "; ".join(parts) + ".")
-
-
-def _apid_inert(record: dict) -> str:
-    """Where APID's adaptation is inert (frozen, the same within 5 %), IAPID-NN-DEKF against
-    APID sets the identifier's adaptation against APID's tuned gains held fixed ("" where it
-    is nowhere inert or the record has no frozen runs of it)."""
-    kin = _kinematic(record)
-    n = {p: [m for m in kin if frozen_word(record, "adaptive-pid", m, p) == "same within 5 %"]
-         for p in record["poses"]}  # fmt: skip
-    said = "; ".join(f"{p}: {', '.join(ms)}" for p, ms in n.items() if ms)
-    return (f"Where APID's own adaptation is inert (frozen, the same within 5 %; {said}), "
-            "IAPID-NN-DEKF against APID sets the identifier's adaptation against APID's tuned "
-            "gains held fixed, not against a working adaptation." if said else "")
 
 
 def verdicts(record: dict) -> dict:
@@ -226,7 +155,8 @@ def _answer(record: dict) -> list[str]:
             f"of {len(arms)} tuned arms, at {d['per_setting']} evaluations per free setting) "
             "and on the MuJoCo robot.",
             "The tuned ratios below are descriptive, not verdicts."]
-    scope = [x for x in (_pays_said(record), _apid_inert(record), _bsc_said(record)) if x] + [
+    adapt = (frozen.pays_said(record), frozen.apid_inert(record), _bsc_said(record))
+    scope = [x for x in adapt if x] + [
         "Divergence at the tuned settings on the kinematic plants (10 m bound): "
         + (", ".join(f"{_lbl(c)} {tot[c][0]} of {tot[c][1]}" for c in order if tot[c][0])
            or "none") + ".",
@@ -239,12 +169,10 @@ def _answer(record: dict) -> list[str]:
     return [" ".join(answer), " ".join(scope)]
 
 
-def _standing(v: dict, kin: list[str], name: str, setting: str | None,
-              only: tuple[str, ...] | None = None) -> str:
+def _standing(v: dict, kin: list[str], name: str, setting: str | None) -> str:
     """The verdicts of ``name`` that stand (not withheld), grouped by word: a mechanism named
     once when both pose sources agree, else per pose source, with the range of the cells'
-    ratios; the withheld ones counted.  With ``only``: just the groups of those words, without
-    the withheld count ("" if none)."""
+    ratios; the withheld ones counted."""
     groups: dict = {}
     for m in kin:
         e = v[m][name] if setting is None else v[m][name].get("default")
@@ -259,14 +187,12 @@ def _standing(v: dict, kin: list[str], name: str, setting: str | None,
                 groups.setdefault(x["verdict"], []).append((f"{m} ({p})", [x["ratio"]]))
     parts = []
     for w, items in groups.items():
-        if w == "withheld" or (only is not None and w not in only):
+        if w == "withheld":
             continue
         rs = [r for _, rr in items for r in rr if r is not None]
         rng = (f" (ratio {min(rs):.3f}" + (f"–{max(rs):.3f})" if max(rs) != min(rs) else ")")
                if rs and "divergence" not in w else "")  # fmt: skip
         parts.append(f"{w} on {', '.join(lbl for lbl, _ in items)}{rng}")
-    if only is not None:
-        return "; ".join(parts)
     held = groups.get("withheld", [])
     n_held = sum(len(rr) for _, rr in held)
     return ("; ".join(parts) or "no verdict stands") + (
@@ -278,23 +204,21 @@ def standing_count(record: dict) -> tuple[int, int]:
     MuJoCo robot stand (are not withheld), of how many: the best arms' contrast is not counted
     on a pose source where its arms are another contrast's (the same comparison twice)."""
     v, mj = record["verdict"]["mechanisms"], record["design"].get("mujoco", ())
-    twice = {p for p in record["poses"]
-             if any(_arms_of(record, KEY, p) == _arms_of(record, n, p)
-                    for n in record["contrasts"] if n != KEY)}  # fmt: skip
+    twice = {p for p, _ in _twice(record)}
     cells = [x for m in v if m not in mj for n, e in v[m].items()
              for p, x in e["poses"].items() if not (n == KEY and p in twice)]  # fmt: skip
     return sum(x["verdict"] != "withheld" for x in cells), len(cells)
 
 
-def bsc_standing(record: dict, only: tuple[str, ...] | None = None) -> str:
+def bsc_standing(record: dict) -> str:
     """Tuned Adaptive BSC against BSC, the fixed law it adapts (the matched contrast of an
     adaptive arm whose fixed law is an arm): its standing verdicts (:func:`_standing`), "" for
     a record without that contrast or the restarts' runs."""
     v = record["verdict"]["mechanisms"]
     if not record.get("restart_pairings") or not all(BSC in e for e in v.values()):
         return ""
-    kin = _kinematic(record)
-    return _standing(v, kin, BSC, None, only)
+    kin = kinematic(record)
+    return _standing(v, kin, BSC, None)
 
 
 def _bsc_said(record: dict) -> str:
@@ -308,11 +232,11 @@ def _answer_pairings(record: dict, n_dis: int, n_arms: int) -> list[str]:
     verdicts that stand (with their ratios), the defaults', and how many tuned verdicts the
     restarts leave standing."""
     d, v = record["design"], record["verdict"]["mechanisms"]
-    kin = _kinematic(record)
+    kin = kinematic(record)
     ada, fix = best_label(record, "best-adaptive"), best_label(record, "best-fixed")
     kept, n_cells = standing_count(record)
     mj = " off the MuJoCo robot, where all are withheld" if d.get("mujoco") else ""
-    off = _inert_said(record)
+    off = frozen.inert_said(record)
     return [
         f"**The answer.** Tuned, the best adaptive arm ({ada}) against the best fixed one "
         f"({fix}): {_standing(v, kin, KEY, None)}."
@@ -333,10 +257,16 @@ def _answer_pairings(record: dict, n_dis: int, n_arms: int) -> list[str]:
         "setting)."]
 
 
+def _twice(record: dict) -> list[tuple[str, str]]:
+    """The (pose source, contrast) where the best arms' contrast is another contrast's
+    comparison (the same two arms)."""
+    return sorted({(p, n) for p in record["poses"] for n in record["contrasts"]
+                   if n != KEY and _arms_of(record, KEY, p) == _arms_of(record, n, p)})
+
+
 def _once(record: dict) -> str:
     """Where the best arms' contrast is another contrast's comparison, which name counts it."""
-    twice = sorted({(p, n) for p in record["poses"] for n in record["contrasts"]
-                    if n != KEY and _arms_of(record, KEY, p) == _arms_of(record, n, p)})
+    twice = _twice(record)
     if not twice:
         return ""
     names = sorted({n for _, n in twice})
